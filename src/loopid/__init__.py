@@ -1,0 +1,27 @@
+"""loopid: closed-loop system identification and model-based control.
+
+An implementation of Ross & Bagnell (ICML 2012), "Agnostic System Identification for
+Model-Based Reinforcement Learning": fit a model of a real system, synthesise a controller on
+it, run the controller on the system, add what it saw to the data, repeat.
+
+Importing loopid turns on JAX float64 (every hot path is float64) and registers the helicopter
+tasks as Gymnasium environments (``loopid/HelicopterHover-v0``, ``loopid/HelicopterHoverDelay-v0``,
+``loopid/HelicopterFunnel-v0``).
+"""
+
+from importlib.metadata import PackageNotFoundError, version
+
+import jax
+
+jax.config.update("jax_enable_x64", True)
+
+try:
+    __version__ = version("loopid")
+except PackageNotFoundError:  # running from a source tree without an install
+    __version__ = "0.0.0+unknown"
+
+from loopid.systems._register import register_envs as _register_envs  # noqa: E402
+
+_register_envs()
+
+__all__ = ["__version__"]
