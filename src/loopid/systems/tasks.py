@@ -1,0 +1,126 @@
+"""Helicopter tasks (SPEC §3, §4.1): targets, start states, noise, delay and quadratic costs.
+
+A task fixes a target trajectory x*_0..x*_{T−1} [T, 21], the start state x_0 [21], the process
+noise std (the noise is std·N(0, I_6) per step, see ``helicopter.noise_sequence``), the actuation
+delay d (steps) and the cost
+
+    J = Σ_{t=0}^{T−1} Δx_tᵀ Q Δx_t + Σ_{t=0}^{T−2} Δu_tᵀ R Δu_t,   Δx_t = to_error(x_t, x*_t),
+
+over T states and T − 1 commanded actions (hover: T = 401, 400 actions; funnel: T = 600).
+Q = dt·diag(w) with the weights w expanded over the 21 error coordinates, R = dt·1e-6·I
+*(choice: the course weights; the paper's own are not published)*.
+"""
+
+import math
+import numbers
+from typing import NamedTuple
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from loopid.systems import helicopter
+
+TASK_NAMES = ("hover", "hover-delay", "funnel")
+#: Weights over [u_prev ×4, du_prev ×4, ned_dot ×3, ned ×3, pqr ×3, q ×3, const ×1].
+HOVER_WEIGHTS = (0.0, 1000.0, 1.0, 1.0, 1.0, 1.0, 0.0)
+FUNNEL_WEIGHTS = (0.0, 1000.0, 0.01, 10.0, 1.0, 10.0, 0.0)
+WEIGHT_BLOCKS = (4, 4, 3, 3, 3, 3, 1)
+ACTION_WEIGHT = 1e-6
+HOVER_STEPS = 400
+
+_DEFAULTS = {  # name: (noise_std, delay)
+    "hover": (1.0, 0),
+    "hover-delay": (1.0, 1),
+    "funnel": (0.1, 0),
+}
+
+
+class Task(NamedTuple):
+    """One helicopter task.
+
+    Fields: ``name``; ``target`` [T, 21] (hover: the hover target repeated, T = 401; funnel:
+    T = 600, or 400 without pads); ``noise_std`` (N for forces, N·m for torques); ``delay``
+    (steps); ``Q`` [21, 21], ``R`` [4, 4]; ``x0`` [21] start state; ``time_varying`` (whether
+    the target moves, i.e. the funnel).
+    """
+
+    name: str
+    target: jax.Array
+    noise_std: float
+    delay: int
+    Q: jax.Array
+    R: jax.Array
+    x0: jax.Array
+    time_varying: bool
+
+    @property
+    def horizon(self) -> int:
+        """Number of actions, T − 1."""
+        return self.target.shape[0] - 1
+
+
+def cost_matrices(weights) -> tuple[jax.Array, jax.Array]:
+    """(Q [21, 21], R [4, 4]) = (dt·diag(w expanded over the error coordinates), dt·1e-6·I).
+
+    ``weights`` has 7 entries, over [u_prev, du_prev, ned_dot, ned, pqr, q, const].
+    """
+    w = np.asarray(weights, dtype=np.float64)
+    if w.shape != (len(WEIGHT_BLOCKS),) or not np.all(np.isfinite(w)) or np.any(w < 0):
+        raise ValueError(
+            f"weights must be 7 finite non-negative numbers over [u_prev, du_prev, ned_dot, ned, "
+            f"pqr, q, const], got {weights!r}"
+        )
+    diag = np.repeat(w, WEIGHT_BLOCKS)
+    Q = helicopter.DT * jnp.diag(jnp.asarray(diag))
+    R = helicopter.DT * ACTION_WEIGHT * jnp.eye(helicopter.N_ACTION)
+    return Q, R
+
+
+def trajectory_cost(dX: jax.Array, dU: jax.Array, Q: jax.Array, R: jax.Array) -> jax.Array:
+    """Total cost Σ_t dX_tᵀ Q dX_t + Σ_t dU_tᵀ R dU_t of dX [T, 21] and dU [T−1, 4]; scalar."""
+    return jnp.einsum("ti,ij,tj->", dX, Q, dX) + jnp.einsum("ti,ij,tj->", dU, R, dU)
+
+
+def _check_noise_std(noise_std) -> float:
+    if isinstance(noise_std, bool) or not isinstance(noise_std, numbers.Real):
+        raise ValueError(f"noise_std must be a finite number >= 0, got {noise_std!r}")
+    if not math.isfinite(noise_std) or noise_std < 0:
+        raise ValueError(f"noise_std must be a finite number >= 0, got {noise_std!r}")
+    return float(noise_std)
+
+
+def _check_delay(delay) -> int:
+    if isinstance(delay, bool) or not isinstance(delay, numbers.Integral) or delay < 0:
+        raise ValueError(f"delay must be an integer >= 0 (steps), got {delay!r}")
+    return int(delay)
+
+
+def make_task(name: str, *, noise_std=None, delay=None, pads: bool = True) -> Task:
+    """Build a task: ``"hover"`` (d = 0, std 1), ``"hover-delay"`` (d = 1, std 1), ``"funnel"``.
+
+    ``noise_std`` and ``delay`` override the task's defaults. The funnel (d = 0, std 0.1) starts
+    at rest at its first target state; ``pads=False`` gives the 400-step variant started on the
+    circle (ignored for hover). Raises ValueError naming a bad value and the allowed ones.
+    """
+    if name not in _DEFAULTS:
+        raise ValueError(f"unknown task name {name!r}; allowed: {', '.join(TASK_NAMES)}")
+    default_std, default_delay = _DEFAULTS[name]
+    std = _check_noise_std(default_std if noise_std is None else noise_std)
+    d = _check_delay(default_delay if delay is None else delay)
+    if name == "funnel":
+        target = helicopter.funnel_target(pads=pads)
+        Q, R = cost_matrices(FUNNEL_WEIGHTS)
+    else:
+        target = jnp.tile(helicopter.hover_target()[None], (HOVER_STEPS + 1, 1))
+        Q, R = cost_matrices(HOVER_WEIGHTS)
+    return Task(
+        name=name,
+        target=target,
+        noise_std=std,
+        delay=d,
+        Q=Q,
+        R=R,
+        x0=target[0],
+        time_varying=name == "funnel",
+    )
