@@ -1,0 +1,346 @@
+"""Infinite-horizon discrete LQR by the structure-preserving doubling algorithm (SDA).
+
+Problem (python-control / SciPy convention)::
+
+    minimise   sum_t  x_tᵀ Q x_t + u_tᵀ R u_t + 2 x_tᵀ N u_t
+    subject to x_{t+1} = A x_t + B u_t,        u_t = -K x_t,
+
+    P = AᵀPA - (AᵀPB + N)(R + BᵀPB)⁻¹(BᵀPA + Nᵀ) + Q,   K = (R + BᵀPB)⁻¹(BᵀPA + Nᵀ).
+
+Shapes: ``A [..., n, n]``, ``B [..., n, m]``, ``Q [..., n, n]``, ``R [..., m, m]``,
+``N [..., n, m]``; leading batch axes broadcast. Results ``K [..., m, n]``, ``P [..., n, n]``.
+
+SDA (Chu, Fan & Lin 2005; Lin & Xu 2006) with A₀ = A, G₀ = B R⁻¹ Bᵀ, H₀ = Q::
+
+    W_k = I + G_k H_k,   A_{k+1} = A_k W_k⁻¹ A_k,
+    G_{k+1} = G_k + A_k W_k⁻¹ G_k A_kᵀ,   H_{k+1} = H_k + A_kᵀ H_k W_k⁻¹ A_k
+
+H_k converges quadratically to the stabilising P when (A, B) is stabilisable and (A, Q) has no
+unobservable mode on the unit circle; W_k is always invertible (its eigenvalues are ≥ 1 because
+G_k, H_k are PSD). No inverse of A is ever taken, so singular or ill-conditioned A is fine. The
+iteration runs at most ``max_iter`` times inside ``lax.while_loop`` and stops early when
+``‖H_{k+1} - H_k‖_F ≤ tol ‖H_{k+1}‖_F``. An iterate that is non-finite or exceeds 1e150 (an
+unstable mode without a control path doubles its exponent every step) is discarded and the loop
+stops: the last finite iterate is returned with ``converged = False``.
+
+``converged`` is True only when the iteration met ``tol``, every number is finite, the relative
+Riccati residual is at most ``rtol_residual`` and the closed loop A - BK is Schur stable
+(spectral radius < 1). A pair that cannot be stabilised (e.g. an eigenvalue-1 mode with cost but
+no control path) returns finite K, P with ``converged = False``.
+
+``dlqr_affine`` handles loopid's error coordinates x = [z; 1] (constant last entry).
+"""
+
+from __future__ import annotations
+
+from functools import partial
+from typing import NamedTuple
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+from jax import Array
+
+from loopid.control._checks import (
+    check_batch,
+    check_finite,
+    check_psd,
+    check_shape,
+    check_square,
+    is_concrete,
+)
+
+__all__ = ["LQRSolution", "dlqr", "dlqr_affine"]
+
+_BLOWUP = 1e150
+
+
+class LQRSolution(NamedTuple):
+    """Steady-state LQR gain and value (batch axes first).
+
+    Attributes:
+        K: ``[..., m, n]`` gain, u = -K x.
+        P: ``[..., n, n]`` value matrix, cost-to-go xᵀPx.
+        converged: ``[...]`` bool, see the module docstring.
+        residual: ``[...]`` relative Riccati residual ‖AᵀPA - P - (AᵀPB + N)K + Q‖_F /
+            (‖AᵀPA‖_F + ‖P‖_F + ‖Q‖_F).
+        spectral_radius: ``[...]`` largest |eigenvalue| of A - BK.
+        iterations: ``[...]`` int, doubling steps taken.
+    """
+
+    K: Array
+    P: Array
+    converged: Array
+    residual: Array
+    spectral_radius: Array
+    iterations: Array
+
+
+def psd_solve(S: Array, rhs: Array) -> tuple[Array, Array]:
+    """Solve S X = rhs for symmetric PSD ``S [m, m]``; never returns NaN.
+
+    Cholesky first; if that fails (S singular or indefinite by round-off) retry with
+    S + δI, δ = 1e-12·(tr S / m) + 1e-300; if that fails too return zeros. Returns
+    ``(X, ok)`` where ``ok`` is True when the plain Cholesky solve succeeded.
+    """
+    S = 0.5 * (S + S.T)
+    m = S.shape[-1]
+
+    def chol_solve(M):
+        L = jnp.linalg.cholesky(M)
+        X = jax.scipy.linalg.cho_solve((L, True), rhs)
+        return X, jnp.all(jnp.isfinite(X))
+
+    X0, ok0 = chol_solve(S)
+    delta = 1e-12 * jnp.abs(jnp.trace(S)) / m + 1e-300
+    X1, ok1 = chol_solve(S + delta * jnp.eye(m, dtype=S.dtype))
+    X = jnp.where(ok0, X0, jnp.where(ok1, X1, jnp.zeros_like(rhs)))
+    return X, ok0
+
+
+def _finite_or_zero(x: Array) -> Array:
+    return jnp.nan_to_num(x, nan=0.0, posinf=_BLOWUP, neginf=-_BLOWUP)
+
+
+def _sda(A: Array, G: Array, H: Array, max_iter: int, tol: float):
+    """Doubling iteration; returns (H, iterations, met_tol)."""
+    n = A.shape[-1]
+    eye = jnp.eye(n, dtype=A.dtype)
+
+    def cond(state):
+        _, _, _, k, done, _ = state
+        return (~done) & (k < max_iter)
+
+    def body(state):
+        A, G, H, k, _, _ = state
+        W = eye + G @ H
+        Y = jnp.linalg.solve(W, jnp.concatenate([A, G], axis=-1))
+        YA, YG = Y[:, :n], Y[:, n:]
+        A1 = A @ YA
+        G1 = G + A @ YG @ A.T
+        H1 = H + A.T @ H @ YA
+        G1 = 0.5 * (G1 + G1.T)
+        H1 = 0.5 * (H1 + H1.T)
+        big = jnp.max(jnp.stack([jnp.max(jnp.abs(Z)) for Z in (A1, G1, H1)]))
+        bad = ~jnp.isfinite(big) | (big > _BLOWUP)
+        dH = jnp.linalg.norm(H1 - H)
+        nH = jnp.linalg.norm(H1)
+        met = dH <= tol * nH
+        keep = lambda new, old: jnp.where(bad, old, new)  # noqa: E731
+        return (keep(A1, A), keep(G1, G), keep(H1, H), k + 1, bad | met, met & ~bad)
+
+    init = (A, G, H, jnp.asarray(0, jnp.int32), jnp.asarray(False), jnp.asarray(False))
+    _, _, H, k, _, met = jax.lax.while_loop(cond, body, init)
+    return H, k, met
+
+
+def _gain_and_residual(A, B, Q, R, N, P):
+    """K = (R + BᵀPB)⁻¹(BᵀPA + Nᵀ) and the relative Riccati residual of P."""
+    S = R + B.T @ P @ B
+    AtPB_N = A.T @ P @ B + N
+    K, _ = psd_solve(S, AtPB_N.T)
+    K = _finite_or_zero(K)
+    AtPA = A.T @ P @ A
+    res = AtPA - P - AtPB_N @ K + Q
+    scale = jnp.linalg.norm(AtPA) + jnp.linalg.norm(P) + jnp.linalg.norm(Q)
+    residual = jnp.linalg.norm(res) / jnp.maximum(scale, 1e-300)
+    residual = jnp.where(jnp.isfinite(residual), residual, jnp.inf)
+    return K, residual
+
+
+def _newton_step(A, B, Q, R, N, K, max_iter):
+    """Value of the gain K: P = A_Kᵀ P A_K + Q - NK - KᵀNᵀ + KᵀRK, A_K = A - BK (Smith doubling)."""
+    Acl = A - B @ K
+    M = Q - N @ K - K.T @ N.T + K.T @ R @ K
+    M = 0.5 * (M + M.T)
+
+    def cond(state):
+        _, _, k, done = state
+        return (~done) & (k < max_iter)
+
+    def body(state):
+        X, Phi, k, _ = state
+        X1 = X + Phi.T @ X @ Phi
+        Phi1 = Phi @ Phi
+        small = jnp.linalg.norm(X1 - X) <= 1e-17 * jnp.linalg.norm(X1)
+        bad = ~jnp.all(jnp.isfinite(X1)) | ~jnp.all(jnp.isfinite(Phi1))
+        return jnp.where(bad, X, X1), jnp.where(bad, Phi, Phi1), k + 1, small | bad
+
+    init = (M, Acl, jnp.asarray(0, jnp.int32), jnp.asarray(False))
+    X, _, _, _ = jax.lax.while_loop(cond, body, init)
+    X = 0.5 * (X + X.T)
+    return _finite_or_zero(X)
+
+
+def _dlqr_single(A, B, Q, R, N, max_iter, tol, rtol_residual, newton_steps=2) -> LQRSolution:
+    """One system, no checks; jittable and vmappable."""
+    m = B.shape[-1]
+    Q = 0.5 * (Q + Q.T)
+    R = 0.5 * (R + R.T)
+    # R⁻¹ through a Cholesky factor, regularised minimally when R is singular.
+    L = jnp.linalg.cholesky(R)
+    delta = 1e-12 * jnp.maximum(jnp.max(jnp.abs(jnp.diag(R))), 1.0)
+    L_reg = jnp.linalg.cholesky(R + delta * jnp.eye(m, dtype=R.dtype))
+    L = jnp.where(jnp.all(jnp.isfinite(L)), L, L_reg)
+    Rinv_NT = jax.scipy.linalg.cho_solve((L, True), N.T)  # [m, n]
+    A0 = A - B @ Rinv_NT
+    Q0 = Q - N @ Rinv_NT
+    Q0 = 0.5 * (Q0 + Q0.T)
+    LiBT = jax.scipy.linalg.solve_triangular(L, B.T, lower=True)  # [m, n]
+    G0 = LiBT.T @ LiBT
+    P, iterations, met = _sda(A0, G0, Q0, max_iter, tol)
+    P = _finite_or_zero(P)
+    K, residual = _gain_and_residual(A, B, Q, R, N, P)
+    # Defect correction: Newton (Kleinman-Hewer) steps recover the digits the doubling loses
+    # when R is tiny (G = BR⁻¹Bᵀ huge); kept only where they lower the residual.
+    for _ in range(newton_steps):
+        P1 = _newton_step(A, B, Q, R, N, K, max_iter)
+        K1, residual1 = _gain_and_residual(A, B, Q, R, N, P1)
+        better = met & (residual1 < residual)
+        P = jnp.where(better, P1, P)
+        K = jnp.where(better, K1, K)
+        residual = jnp.where(better, residual1, residual)
+    rho = jnp.max(jnp.abs(jnp.linalg.eigvals(A - B @ K)))
+    rho = jnp.where(jnp.isfinite(rho), rho, jnp.inf)
+    converged = met & (residual <= rtol_residual) & (rho < 1.0)
+    return LQRSolution(K, P, converged, residual, rho, iterations)
+
+
+def _check_lqr_args(A, B, Q, R, N):
+    sA = check_square("A", A)
+    n = sA[-1]
+    sB = check_shape("B", B, (n, None))
+    m = sB[-1]
+    sQ = check_shape("Q", Q, (n, n))
+    sR = check_shape("R", R, (m, m))
+    shapes = {"A": sA, "B": sB, "Q": sQ, "R": sR}
+    core = {"A": 2, "B": 2, "Q": 2, "R": 2}
+    if N is not None:
+        shapes["N"] = check_shape("N", N, (n, m))
+        core["N"] = 2
+    batch = check_batch(shapes, core)
+    for name, x in (("A", A), ("B", B), ("N", N)):
+        check_finite(name, x)
+    check_psd("Q", Q)
+    check_psd("R", R)
+    return batch, n, m
+
+
+@partial(jax.jit, static_argnames=("max_iter",))
+def _dlqr(A, B, Q, R, N, max_iter=64, tol=1e-13, rtol_residual=1e-8) -> LQRSolution:
+    """Batched core: leading axes of all arguments already broadcast to one batch shape."""
+    batch = A.shape[:-2]
+    f = partial(_dlqr_single, max_iter=max_iter, tol=tol, rtol_residual=rtol_residual)
+    if not batch:
+        return f(A, B, Q, R, N)
+    flat = [x.reshape((-1, *x.shape[-2:])) for x in (A, B, Q, R, N)]
+    sol = jax.vmap(f)(*flat)
+    return jax.tree.map(lambda y: y.reshape(batch + y.shape[1:]), sol)
+
+
+def dlqr(
+    A,
+    B,
+    Q,
+    R,
+    *,
+    N=None,
+    max_iter: int = 64,
+    tol: float = 1e-13,
+    rtol_residual: float = 1e-8,
+) -> LQRSolution:
+    """Infinite-horizon discrete LQR, u = -K x; see the module docstring for the math.
+
+    Args:
+        A: ``[..., n, n]`` dynamics.
+        B: ``[..., n, m]`` input matrix.
+        Q: ``[..., n, n]`` symmetric PSD state weight.
+        R: ``[..., m, m]`` symmetric PSD input weight (singular R is regularised by 1e-12·max R).
+        N: optional ``[..., n, m]`` cross weight (cost term 2 xᵀ N u).
+        max_iter: cap on doubling steps (each squares the horizon covered; 64 is ample).
+        tol: relative change of P at which the doubling stops.
+        rtol_residual: largest relative Riccati residual still called converged.
+
+    Returns:
+        :class:`LQRSolution`, batch axes = the broadcast of the inputs' leading axes.
+
+    Shape checks always run (also on tracers, inside ``jit``/``vmap``/``scan``); symmetry and
+    PSD checks run on concrete inputs only. Call it directly from jitted code.
+    """
+    batch, n, m = _check_lqr_args(A, B, Q, R, N)
+    f64 = partial(jnp.asarray, dtype=jnp.float64)
+    if N is None:
+        N = jnp.zeros((n, m), dtype=jnp.float64)
+    args = [jnp.broadcast_to(f64(x), batch + f64(x).shape[-2:]) for x in (A, B, Q, R, N)]
+    return _dlqr(*args, max_iter=max_iter, tol=tol, rtol_residual=rtol_residual)
+
+
+def _dlqr_affine_single(A, B, Q, R, max_iter, tol, rtol_residual) -> LQRSolution:
+    F, c, G = A[:-1, :-1], A[:-1, -1], B[:-1]
+    Q = 0.5 * (Q + Q.T)
+    Qzz, qz = Q[:-1, :-1], Q[:-1, -1]
+    nz, m = G.shape
+    sol = _dlqr_single(F, G, Qzz, R, jnp.zeros((nz, m), F.dtype), max_iter, tol, rtol_residual)
+    Kz, Pz = sol.K, sol.P
+    Acl = F - G @ Kz
+    lhs = jnp.eye(nz, dtype=F.dtype) - Acl.T
+    rhs = qz + Acl.T @ (Pz @ c)
+    p = jnp.linalg.solve(lhs, rhs)
+    p_ok = jnp.all(jnp.isfinite(p))
+    p = jnp.where(p_ok, p, _finite_or_zero(jnp.linalg.pinv(lhs) @ rhs))
+    S = R + G.T @ Pz @ G
+    kff, _ = psd_solve(S, (G.T @ (Pz @ c + p))[:, None])
+    kff = _finite_or_zero(kff[:, 0])
+    K = jnp.concatenate([Kz, kff[:, None]], axis=1)
+    P = jnp.block([[Pz, p[:, None]], [p[None, :], jnp.zeros((1, 1), F.dtype)]])
+    return sol._replace(K=K, P=P, converged=sol.converged & p_ok)
+
+
+@partial(jax.jit, static_argnames=("max_iter",))
+def _dlqr_affine(A, B, Q, R, max_iter=64, tol=1e-13, rtol_residual=1e-8) -> LQRSolution:
+    batch = A.shape[:-2]
+    f = partial(_dlqr_affine_single, max_iter=max_iter, tol=tol, rtol_residual=rtol_residual)
+    if not batch:
+        return f(A, B, Q, R)
+    flat = [x.reshape((-1, *x.shape[-2:])) for x in (A, B, Q, R)]
+    sol = jax.vmap(f)(*flat)
+    return jax.tree.map(lambda y: y.reshape(batch + y.shape[1:]), sol)
+
+
+def dlqr_affine(
+    A, B, Q, R, *, max_iter: int = 64, tol: float = 1e-13, rtol_residual: float = 1e-8
+) -> LQRSolution:
+    """Steady-state LQR for affine dynamics written with a constant last coordinate.
+
+    x = [z; 1] with ``A = [[F, c], [0, 1]]``, ``B = [[G], [0]]``, ``Q = [[Q_zz, q], [qᵀ, q₀]]``,
+    so z_{t+1} = F z_t + G u_t + c and the stage cost is zᵀQ_zz z + 2qᵀz + q₀ + uᵀRu. The constant
+    mode is uncontrollable at eigenvalue 1, so the DARE is solved on the z block (F, G, Q_zz, R)
+    giving K_z, P_z. The value's linear term p (cost-to-go zᵀP_z z + 2pᵀz + const) is the fixed
+    point of the finite-horizon recursion p ← q + (F - GK_z)ᵀ(P_z c + p), i.e. the linear solve
+
+        (I - (F - GK_z)ᵀ) p = q + (F - GK_z)ᵀ P_z c,
+
+    and the feedforward is k = (R + GᵀP_zG)⁻¹ Gᵀ(P_z c + p). Returned ``K = [K_z, k]`` has shape
+    ``[..., m, n]`` so that u = -K x; ``P = [[P_z, p], [pᵀ, 0]]`` (the constant part of the value
+    grows with the horizon at the average cost per step and is reported as 0). ``converged``,
+    ``residual``, ``spectral_radius`` and ``iterations`` refer to the z block (and ``converged``
+    also needs a finite p). This is the limit of the first gain of :func:`tvlqr` on the same
+    problem as the horizon grows.
+
+    Shapes as :func:`dlqr`; the last row of A must be [0, …, 0, 1] and the last row of B zero.
+    """
+    batch, n, _ = _check_lqr_args(A, B, Q, R, None)
+    if n < 2:
+        raise ValueError(f"A must be at least 2x2 (state plus constant), got shape {jnp.shape(A)}")
+    if is_concrete(A) and is_concrete(B):
+        last = np.asarray(A)[..., -1, :]
+        want = np.zeros(n)
+        want[-1] = 1.0
+        if not np.allclose(last, want, rtol=0.0, atol=1e-12):
+            raise ValueError(f"A's last row must be [0, ..., 0, 1] (the constant), got {last}")
+        lastB = np.asarray(B)[..., -1, :]
+        if not np.allclose(lastB, 0.0, rtol=0.0, atol=1e-12):
+            raise ValueError(f"B's last row must be zero (constant coordinate), got {lastB}")
+    f64 = partial(jnp.asarray, dtype=jnp.float64)
+    args = [jnp.broadcast_to(f64(x), batch + f64(x).shape[-2:]) for x in (A, B, Q, R)]
+    return _dlqr_affine(*args, max_iter=max_iter, tol=tol, rtol_residual=rtol_residual)

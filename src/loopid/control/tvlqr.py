@@ -1,0 +1,198 @@
+"""Finite-horizon, time-varying LQR with affine dynamics and linear cost terms.
+
+Problem (t = 0..T-1; same quadratic convention as :func:`loopid.control.dlqr`, no ½)::
+
+    minimise   Σ_t [x_tᵀQ_t x_t + 2q_tᵀx_t + u_tᵀR_t u_t + 2r_tᵀu_t + 2x_tᵀM_t u_t]
+               + x_Tᵀ Q_T x_T + 2 q_Tᵀ x_T
+    subject to x_{t+1} = A_t x_t + B_t u_t + c_t.
+
+Solution: u_t = -K_t x_t - k_t, cost-to-go V_t(x) = xᵀP_t x + 2p_tᵀx + const. Backward
+recursion from P_T = Q_T, p_T = q_T, with s = P_{t+1}c_t + p_{t+1}::
+
+    H_xx = Q + AᵀPA,   H_uu = R + BᵀPB,   H_ux = Mᵀ + BᵀPA,   h_x = q + Aᵀs,   h_u = r + Bᵀs
+    K = H_uu⁻¹ H_ux,   k = H_uu⁻¹ h_u
+    P_t = H_xx - H_uxᵀK - KᵀH_ux + KᵀH_uu K,   p_t = h_x - H_uxᵀk - Kᵀh_u + KᵀH_uu k
+
+(the last two are the value of the gains actually used, so they stay right when iLQR adds μI to
+H_uu). H_uu is factored by Cholesky; when it is singular (R = 0 with rank-deficient B) the solve
+falls back to H_uu + δI (δ = 1e-12 tr H_uu / m), then to zero gains: never NaN.
+
+Shapes (time axis first): ``A [T, n, n]``, ``B [T, n, m]``, ``c [T, n]``, ``Q [T, n, n]``,
+``q [T, n]``, ``R [T, m, m]``, ``r [T, m]``, ``M [T, n, m]``, ``Q_T [n, n]``, ``q_T [n]``. Any
+per-step argument may drop its time axis (it is then the same at every step); T comes from the
+arguments that have one, or from ``T=``. Batch by ``jax.vmap``. Results: ``K [T, m, n]``,
+``k [T, m]``, ``P [T+1, n, n]``, ``p [T+1, n]``.
+"""
+
+from __future__ import annotations
+
+from functools import partial
+from typing import NamedTuple
+
+import jax
+import jax.numpy as jnp
+from jax import Array
+
+from loopid.control._checks import check_finite, check_psd, check_shape, shape_of
+from loopid.control.lqr import psd_solve
+
+__all__ = ["TVLQRSolution", "tvlqr"]
+
+
+class TVLQRSolution(NamedTuple):
+    """Time-varying affine gains u_t = -K_t x_t - k_t and the value xᵀP_t x + 2p_tᵀx + const.
+
+    Attributes:
+        K: ``[T, m, n]`` feedback gains.
+        k: ``[T, m]`` feedforward terms.
+        P: ``[T+1, n, n]`` value matrices (P[T] = Q_T).
+        p: ``[T+1, n]`` value linear terms (p[T] = q_T).
+    """
+
+    K: Array
+    k: Array
+    P: Array
+    p: Array
+
+
+class _BackwardAux(NamedTuple):
+    """What iLQR needs besides the gains: predicted cost change terms and solve status."""
+
+    hu_k: Array  # Σ_t h_uᵀk_t  (expected change of a step -αk: α²·kHk - 2α·hu_k)
+    kHk: Array  # Σ_t k_tᵀ H_uu k_t
+    ok: Array  # every H_uu (+ μI) was positive definite
+
+
+def _backward(A, B, c, Q, q, R, r, M, Q_T, q_T, mu):
+    """The recursion of the module docstring; all per-step arrays carry the time axis."""
+    m = B.shape[-1]
+    eye_m = jnp.eye(m, dtype=A.dtype)
+
+    def step(carry, xs):
+        P, p = carry
+        A, B, c, Q, q, R, r, M = xs
+        s = P @ c + p
+        PA = P @ A
+        PB = P @ B
+        Hxx = Q + A.T @ PA
+        Huu = R + B.T @ PB
+        Hux = M.T + B.T @ PA
+        hx = q + A.T @ s
+        hu = r + B.T @ s
+        Huu_reg = Huu + mu * eye_m
+        sol, ok = psd_solve(Huu_reg, jnp.concatenate([Hux, hu[:, None]], axis=1))
+        K, k = sol[:, :-1], sol[:, -1]
+        KtHuu = K.T @ Huu
+        P_new = Hxx - Hux.T @ K - K.T @ Hux + KtHuu @ K
+        P_new = 0.5 * (P_new + P_new.T)
+        p_new = hx - Hux.T @ k - K.T @ hu + KtHuu @ k
+        out = (K, k, P_new, p_new, hu @ k, k @ Huu @ k, ok)
+        return (P_new, p_new), out
+
+    Q_T = 0.5 * (Q_T + Q_T.T)
+    _, (K, k, P, p, hu_k, kHk, ok) = jax.lax.scan(
+        step, (Q_T, q_T), (A, B, c, Q, q, R, r, M), reverse=True
+    )
+    P = jnp.concatenate([P, Q_T[None]], axis=0)
+    p = jnp.concatenate([p, q_T[None]], axis=0)
+    return TVLQRSolution(K, k, P, p), _BackwardAux(jnp.sum(hu_k), jnp.sum(kHk), jnp.all(ok))
+
+
+@jax.jit
+def _tvlqr(A, B, c, Q, q, R, r, M, Q_T, q_T) -> TVLQRSolution:
+    """Jitted core: every per-step argument already has the time axis; no checks."""
+    sol, _ = _backward(A, B, c, Q, q, R, r, M, Q_T, q_T, 0.0)
+    return sol
+
+
+def tvlqr(
+    A,
+    B,
+    Q,
+    R,
+    *,
+    c=None,
+    q=None,
+    r=None,
+    M=None,
+    Q_T=None,
+    q_T=None,
+    T: int | None = None,
+) -> TVLQRSolution:
+    """Finite-horizon time-varying LQR; see the module docstring for the problem and shapes.
+
+    Args:
+        A: ``[T, n, n]`` (or ``[n, n]``) dynamics.
+        B: ``[T, n, m]`` (or ``[n, m]``) input matrices.
+        Q: ``[T, n, n]`` (or ``[n, n]``) symmetric PSD state weights.
+        R: ``[T, m, m]`` (or ``[m, m]``) symmetric PSD input weights.
+        c: ``[T, n]`` affine drift (default 0).
+        q, r: ``[T, n]``, ``[T, m]`` linear cost terms (cost 2qᵀx + 2rᵀu; default 0).
+        M: ``[T, n, m]`` cross weights (cost 2xᵀMu; default 0).
+        Q_T, q_T: ``[n, n]``, ``[n]`` terminal cost x_TᵀQ_T x_T + 2q_Tᵀx_T (default 0).
+        T: horizon, needed only when no argument has a time axis.
+
+    Returns:
+        :class:`TVLQRSolution` with u_t = -K_t x_t - k_t.
+
+    Shape checks also run on tracers, value checks (symmetry, PSD, finite) only on concrete
+    arrays, so this function can be called inside ``jit``/``vmap``/``scan`` directly.
+    """
+    sA = shape_of("A", A)
+    if len(sA) not in (2, 3) or sA[-1] != sA[-2]:
+        raise ValueError(f"A must have shape [T, n, n] or [n, n], got shape {sA}")
+    n = sA[-1]
+    sB = shape_of("B", B)
+    if len(sB) not in (2, 3) or sB[-2] != n:
+        raise ValueError(f"B must have shape [T, {n}, m] or [{n}, m], got shape {sB}")
+    m = sB[-1]
+    per_step = {
+        "A": (A, (n, n)),
+        "B": (B, (n, m)),
+        "Q": (Q, (n, n)),
+        "R": (R, (m, m)),
+        "c": (c, (n,)),
+        "q": (q, (n,)),
+        "r": (r, (m,)),
+        "M": (M, (n, m)),
+    }
+    horizons = {}
+    for name, (x, core) in per_step.items():
+        if x is None:
+            continue
+        s = check_shape(name, x, core)
+        if len(s) == len(core) + 1:
+            horizons[name] = s[0]
+        elif len(s) != len(core):
+            want = "[T, " + ", ".join(map(str, core)) + "]"
+            raise ValueError(f"{name} must have shape {want} or without T, got shape {s}")
+    if len(set(horizons.values())) > 1:
+        raise ValueError(f"time axes differ: {horizons}")
+    if T is not None and (int(T) < 1 or any(h != T for h in horizons.values())):
+        raise ValueError(f"T must be a positive int equal to the arguments' time axes, got {T}")
+    if horizons:
+        T = next(iter(horizons.values()))
+    if T is None or T < 1:
+        raise ValueError("T is required (and positive) when no argument has a time axis")
+    if Q_T is not None and check_shape("Q_T", Q_T, (n, n)) != (n, n):
+        raise ValueError(f"Q_T must have shape [{n}, {n}], got shape {shape_of('Q_T', Q_T)}")
+    if q_T is not None and check_shape("q_T", q_T, (n,)) != (n,):
+        raise ValueError(f"q_T must have shape [{n}], got shape {shape_of('q_T', q_T)}")
+    for name in ("A", "B", "c", "q", "r", "M"):
+        check_finite(name, per_step[name][0])
+    check_finite("q_T", q_T)
+    check_psd("Q", Q)
+    check_psd("R", R)
+    check_psd("Q_T", Q_T)
+
+    f64 = partial(jnp.asarray, dtype=jnp.float64)
+
+    def full(x, core):
+        x = jnp.zeros(core, jnp.float64) if x is None else f64(x)
+        return jnp.broadcast_to(x, (T, *core))
+
+    args = [full(x, core) for x, core in per_step.values()]
+    A_, B_, Q_, R_, c_, q_, r_, M_ = args
+    Q_T = jnp.zeros((n, n), jnp.float64) if Q_T is None else f64(Q_T)
+    q_T = jnp.zeros((n,), jnp.float64) if q_T is None else f64(q_T)
+    return _tvlqr(A_, B_, c_, Q_, q_, R_, r_, M_, Q_T, q_T)
