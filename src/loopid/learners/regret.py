@@ -17,6 +17,7 @@ The paper's guarantee (Theorem 4.1) needs R_N / N → 0; no-regret learners give
 
 from __future__ import annotations
 
+from functools import partial
 from typing import NamedTuple
 
 import jax
@@ -97,14 +98,25 @@ def hindsight_loss(X, Y, mask=None, index=None, n_steps: int | None = None) -> j
         steps T; the best fixed model then has one W per step.
     """
     Xs, Ys, w = _stream(X, Y, mask)
-    N, b, f = Xs.shape
+    N, b, _ = Xs.shape
     if index is None:
-        ZZ = jnp.einsum("nb,nbf,nbg->fg", w, Xs, Xs)
-        ZY = jnp.einsum("nb,nbf,nbt->ft", w, Xs, Ys)
-        return _min_loss(ZZ, ZY, jnp.sum(w[..., None] * Ys**2)) / N
+        return _hindsight(Xs, Ys, w)
     if n_steps is None:
         raise ValueError("n_steps is required with index")
     idx = check_index(jnp.reshape(jnp.asarray(index), (N * b,)), N * b, n_steps)
+    return _hindsight_indexed(Xs, Ys, w, idx, n_steps)
+
+
+@jax.jit
+def _hindsight(Xs, Ys, w):
+    ZZ = jnp.einsum("nb,nbf,nbg->fg", w, Xs, Xs)
+    ZY = jnp.einsum("nb,nbf,nbt->ft", w, Xs, Ys)
+    return _min_loss(ZZ, ZY, jnp.sum(w[..., None] * Ys**2)) / Xs.shape[0]
+
+
+@partial(jax.jit, static_argnums=4)
+def _hindsight_indexed(Xs, Ys, w, idx, n_steps):
+    N, b, f = Xs.shape
     xw = (w[..., None] * Xs).reshape(N * b, f)
     Xf, Yf = Xs.reshape(N * b, f), Ys.reshape(N * b, -1)
     ZZ = jnp.zeros((n_steps, f, f)).at[idx].add(xw[:, :, None] * Xf[:, None, :])
@@ -126,6 +138,12 @@ def regret_curve(online_losses, X, Y, mask=None) -> RegretCurve:
     N = Xs.shape[0]
     if losses.shape != (N,):
         raise ValueError(f"online_losses must have shape [{N}], got {losses.shape}")
+    return _curve(losses, Xs, Ys, w)
+
+
+@jax.jit
+def _curve(losses, Xs, Ys, w):
+    N = Xs.shape[0]
     ZZ = jnp.cumsum(jnp.einsum("nb,nbf,nbg->nfg", w, Xs, Xs), axis=0)
     ZY = jnp.cumsum(jnp.einsum("nb,nbf,nbt->nft", w, Xs, Ys), axis=0)
     yy = jnp.cumsum(jnp.einsum("nb,nbt->n", w, Ys**2), axis=0)
