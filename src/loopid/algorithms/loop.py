@@ -1,0 +1,326 @@
+"""Algorithm 1 of Ross & Bagnell (2012), for every seed at once.
+
+One *cell* is one method on one plant over N iterations for S seeds. Iteration ``n = 1`` solves
+the initial model; each iteration ``n = 2..N`` draws ``m`` transitions with the policy ``π_{n−1}``
+and the exploration distribution ν, gives them to the online learner, solves the new model for
+``π_n`` and tests ``π_n`` on the real noisy system (SPEC §1)::
+
+    slot i of the batch  ←  a draw from running π_{n−1}   with probability p_n,
+                            a draw from ν                   otherwise,
+
+with ``p_n = ½`` for DAgger, ``0`` for Batch, and for Abbeel's method ``0`` at ``n = 2`` (ν = the
+expert) and ``1`` afterwards (:mod:`loopid.algorithms.methods`). Both candidate sets are always
+drawn (fixed shapes); the model's loss on each is recorded before the update, so every method
+reports how well its model predicts its own policy's data and ν's (the train/test mismatch).
+
+Speed: the iteration is a pure function of a fixed-shape carry, vmapped over seeds and jitted
+once; :func:`run_learning` calls it N − 1 times from Python (no retracing: the iteration number and
+``p_n`` are traced arguments), which gives progress and early results per iteration.
+
+Randomness: seed ``s`` has key ``k = jax.random.key(s)``; training draws at iteration n use
+``fold_in(fold_in(k, 1), n)`` and the test trajectories ``fold_in(fold_in(k, 2), n)``, so every
+method sees the same test noise at the same seed and iteration (common random numbers).
+"""
+
+from collections.abc import Callable
+from typing import Any, NamedTuple
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from loopid.algorithms.collect import policy_samples
+from loopid.algorithms.plant import Plant, Transitions, select
+
+TEST_POLICIES = ("last", "best", "mixture")
+_TRAIN, _TEST = 1, 2
+
+
+class SolverInfo(NamedTuple):
+    """The optimal-control solve's status: ``converged`` and the closed-loop spectral radius."""
+
+    converged: jax.Array
+    spectral_radius: jax.Array
+
+
+class Agent(NamedTuple):
+    """Model class + online learner + optimal-control solver, as pure functions.
+
+    - ``init() -> state``: the learner's initial state (the initial model).
+    - ``update(state, batch: Transitions) -> state``: one online-learning step on a batch (masked
+      rows ignored).
+    - ``policy(state) -> (K [horizon, m, n], SolverInfo)``: solve the optimal-control problem on
+      the current model.
+    - ``loss(state, batch) -> [b]``: per-row prediction loss of the current model.
+    """
+
+    init: Callable[[], Any]
+    update: Callable[[Any, Transitions], Any]
+    policy: Callable[[Any], tuple[jax.Array, SolverInfo]]
+    loss: Callable[[Any, Transitions], jax.Array]
+
+
+class Row(NamedTuple):
+    """One iteration's results, per seed (leaves ``[S]``); stacked over iterations in a Trace.
+
+    - ``test_cost``: mean capped total cost over the test trajectories;
+    - ``test_cost_median``: their median;
+    - ``diverged``: how many reached the cap or a non-finite state;
+    - ``loss_nu`` / ``loss_policy``: the model's mean squared prediction error, before the update,
+      on this iteration's ν draws / policy draws (0 when there were none);
+    - ``online_loss``: running average over iterations of the loss on the trained batch, before
+      each update (the no-regret learner's average online loss);
+    - ``policy_samples``: how many of the m trained transitions came from the policy;
+    - ``valid_samples``: how many were usable (not cut by the safe region);
+    - ``solver_converged``, ``spectral_radius``: the optimal-control solve's status.
+    """
+
+    test_cost: jax.Array
+    test_cost_median: jax.Array
+    diverged: jax.Array
+    loss_nu: jax.Array
+    loss_policy: jax.Array
+    online_loss: jax.Array
+    policy_samples: jax.Array
+    valid_samples: jax.Array
+    solver_converged: jax.Array
+    spectral_radius: jax.Array
+
+
+class Trace(NamedTuple):
+    """All iterations of one cell: ``iteration [N]``, ``samples [N]`` (collected before the
+    policy of that iteration was solved) and ``rows`` (a :class:`Row` with leaves ``[S, N]``)."""
+
+    seeds: np.ndarray
+    iteration: np.ndarray
+    samples: np.ndarray
+    rows: Row
+
+
+class _Carry(NamedTuple):
+    learner: Any
+    K: jax.Array
+    best_K: jax.Array
+    best_cost: jax.Array
+    history: jax.Array
+    loss_sum: jax.Array
+
+
+def _masked_mean(values: jax.Array, mask: jax.Array) -> jax.Array:
+    count = jnp.sum(mask)
+    total = jnp.sum(jnp.where(mask, values, 0.0))
+    return jnp.where(count > 0, total / jnp.maximum(count, 1), 0.0)
+
+
+def seed_keys(seeds) -> jax.Array:
+    """One key per integer seed (``jax.random.key(seed)``), stacked ``[S]``."""
+    seeds = np.asarray(seeds)
+    if seeds.ndim != 1 or seeds.size == 0 or not np.issubdtype(seeds.dtype, np.integer):
+        raise ValueError(f"seeds must be a non-empty list of integers, got {seeds!r}")
+    if (seeds < 0).any():
+        raise ValueError(f"seeds must be >= 0, got {seeds.tolist()}")
+    return jax.vmap(jax.random.key)(jnp.asarray(seeds, dtype=jnp.uint32))
+
+
+def _evaluate(plant: Plant, carry: _Carry, K, key, n, n_test: int, test_policy: str):
+    """Test the iteration's policy; returns (costs [n_test], diverged [n_test], new carry)."""
+    costs, div = plant.test_costs(K, key, n_test)
+    mean = jnp.mean(costs)
+    better = mean < carry.best_cost
+    best_K = jnp.where(better, K, carry.best_K)
+    carry = carry._replace(K=K, best_K=best_K, best_cost=jnp.minimum(mean, carry.best_cost))
+    if test_policy == "best":
+        costs, div = plant.test_costs(best_K, key, n_test)
+    elif test_policy == "mixture":
+        history = carry.history.at[n - 1].set(K)
+        carry = carry._replace(history=history)
+        pick = jax.random.randint(jax.random.fold_in(key, 7), (n_test,), 0, n)
+        keys = jax.random.split(key, n_test)
+        costs, div = jax.vmap(plant.test_one)(history[pick], keys)
+    return costs, div, carry
+
+
+def make_cell(
+    plant: Plant,
+    agent: Agent,
+    nu: Callable[[jax.Array, int], Transitions] | None,
+    *,
+    samples: int,
+    iterations: int,
+    n_test: int,
+    mode: str = "trajectory",
+    gamma: float = 0.99,
+    test_policy: str = "last",
+):
+    """Build ``(start, step)``, jitted and vmapped over seeds, for one learning method.
+
+    ``start(keys [S]) -> (carry, Row)`` solves and tests the initial model (iteration 1);
+    ``step(carry, keys, n, p) -> (carry, Row)`` runs iteration ``n`` with policy fraction ``p``.
+    """
+    if test_policy not in TEST_POLICIES:
+        raise ValueError(f"test_policy must be one of {TEST_POLICIES}, got {test_policy!r}")
+    hist_len = iterations if test_policy == "mixture" else 1
+
+    def start(key):
+        state = agent.init()
+        K, info = agent.policy(state)
+        carry = _Carry(
+            learner=state,
+            K=K,
+            best_K=K,
+            best_cost=jnp.float64(jnp.inf),
+            history=jnp.zeros((hist_len, *K.shape), K.dtype),
+            loss_sum=jnp.float64(0.0),
+        )
+        test_key = jax.random.fold_in(jax.random.fold_in(key, _TEST), 1)
+        costs, div, carry = _evaluate(plant, carry, K, test_key, 1, n_test, test_policy)
+        zero = jnp.float64(0.0)
+        row = Row(
+            jnp.mean(costs),
+            jnp.median(costs),
+            jnp.sum(div),
+            zero,
+            zero,
+            zero,
+            jnp.int32(0),
+            jnp.int32(0),
+            info.converged,
+            info.spectral_radius,
+        )
+        return carry, row
+
+    def step(carry: _Carry, key, n, p):
+        k_pol, k_nu, k_mix = jax.random.split(
+            jax.random.fold_in(jax.random.fold_in(key, _TRAIN), n), 3
+        )
+        from_pol = policy_samples(plant, carry.K, k_pol, samples, mode=mode, gamma=gamma)
+        from_nu = nu(k_nu, samples) if nu is not None else from_pol
+        take = jax.random.bernoulli(k_mix, p, (samples,))
+        batch = select(take, from_pol, from_nu)
+
+        loss_nu = _masked_mean(agent.loss(carry.learner, from_nu), from_nu.mask)
+        loss_pol = _masked_mean(agent.loss(carry.learner, from_pol), from_pol.mask)
+        loss_sum = carry.loss_sum + _masked_mean(agent.loss(carry.learner, batch), batch.mask)
+
+        state = agent.update(carry.learner, batch)
+        K, info = agent.policy(state)
+        carry = carry._replace(learner=state, loss_sum=loss_sum)
+        test_key = jax.random.fold_in(jax.random.fold_in(key, _TEST), n)
+        costs, div, carry = _evaluate(plant, carry, K, test_key, n, n_test, test_policy)
+        row = Row(
+            jnp.mean(costs),
+            jnp.median(costs),
+            jnp.sum(div),
+            loss_nu,
+            loss_pol,
+            loss_sum / (n - 1),
+            jnp.sum(take & batch.mask),
+            jnp.sum(batch.mask),
+            info.converged,
+            info.spectral_radius,
+        )
+        return carry, row
+
+    start_v = jax.jit(jax.vmap(start))
+    step_v = jax.jit(jax.vmap(step, in_axes=(0, 0, None, None)))
+    return start_v, step_v
+
+
+def run_learning(
+    plant: Plant,
+    agent: Agent,
+    nu,
+    fractions,
+    seeds,
+    *,
+    samples: int,
+    n_test: int,
+    mode: str = "trajectory",
+    gamma: float = 0.99,
+    test_policy: str = "last",
+    progress: Callable[[int, Row], None] | None = None,
+) -> Trace:
+    """Run one learning method for ``len(fractions)`` iterations on every seed.
+
+    ``fractions[n−1]`` is the probability ``p_n`` that a slot of iteration n's batch comes from
+    the policy (``fractions[0]`` is unused: iteration 1 collects nothing). ``progress(n, row)`` is
+    called after each iteration with that iteration's :class:`Row` (leaves ``[S]``).
+    """
+    fractions = np.asarray(fractions, dtype=np.float64)
+    iterations = int(fractions.shape[0])
+    if iterations < 1:
+        raise ValueError(f"iterations must be >= 1, got {iterations}")
+    if ((fractions < 0) | (fractions > 1)).any():
+        raise ValueError(f"policy fractions must lie in [0, 1], got {fractions.tolist()}")
+    keys = seed_keys(seeds)
+    start, step = make_cell(
+        plant,
+        agent,
+        nu,
+        samples=samples,
+        iterations=iterations,
+        n_test=n_test,
+        mode=mode,
+        gamma=gamma,
+        test_policy=test_policy,
+    )
+    carry, row = start(keys)
+    rows = [row]
+    if progress:
+        progress(1, row)
+    for n in range(2, iterations + 1):
+        carry, row = step(carry, keys, jnp.int32(n), jnp.float64(fractions[n - 1]))
+        rows.append(row)
+        if progress:
+            progress(n, row)
+    return _trace(seeds, samples, rows)
+
+
+def run_fixed_policy(
+    plant: Plant,
+    K: jax.Array,
+    seeds,
+    *,
+    iterations: int,
+    samples: int,
+    n_test: int,
+    progress: Callable[[int, Row], None] | None = None,
+) -> Trace:
+    """Test one fixed policy (the linearised expert L) at every iteration, on the same test noise
+    as the learning methods; the diagnostics are 0 and the solver status is that of ``K``."""
+    keys = seed_keys(seeds)
+
+    @jax.jit
+    @jax.vmap
+    def test(key, n):
+        costs, div = plant.test_costs(
+            K, jax.random.fold_in(jax.random.fold_in(key, _TEST), n), n_test
+        )
+        zero = jnp.float64(0.0)
+        return Row(
+            jnp.mean(costs),
+            jnp.median(costs),
+            jnp.sum(div),
+            zero,
+            zero,
+            zero,
+            jnp.int32(0),
+            jnp.int32(0),
+            jnp.bool_(True),
+            jnp.float64(0.0),
+        )
+
+    rows = []
+    for n in range(1, iterations + 1):
+        row = test(keys, jnp.full(keys.shape, n, jnp.int32))
+        rows.append(row)
+        if progress:
+            progress(n, row)
+    return _trace(seeds, samples, rows)
+
+
+def _trace(seeds, samples: int, rows: list[Row]) -> Trace:
+    stacked = jax.tree_util.tree_map(lambda *a: np.stack([np.asarray(x) for x in a], axis=1), *rows)
+    n = len(rows)
+    iteration = np.arange(1, n + 1)
+    return Trace(np.asarray(seeds), iteration, (iteration - 1) * samples, stacked)

@@ -1,0 +1,90 @@
+"""The model-based agent of the helicopter experiments: linear offset model + learner + LQR.
+
+The model class is :class:`loopid.models.LinearOffsetModel` (SPEC §4.2) in error coordinates,
+features ``z = [Δx; Δu]`` and residual targets ``y = Δx' − (AΔx + BΔu)``; any online learner
+(:mod:`loopid.learners`) fits ``W = [A' B']ᵀ``. The optimal-control solver (SPEC §4.3):
+
+- time-invariant model: steady-state LQR for the affine model (:func:`loopid.control.dlqr_affine`);
+  when it does not converge (the initial hover model is not stabilisable) the policy is the first
+  gain of the finite-horizon LQR over the task horizon (SPEC §4.4), and ``converged`` is False.
+- time-varying model: finite-horizon time-varying LQR (:func:`loopid.control.tvlqr`) with the
+  task's Q at every step and as the terminal cost.
+
+Policies are ``K: [horizon, m, n]`` with ``u_t = −K_t Δx_t``.
+"""
+
+import jax
+import jax.numpy as jnp
+
+from loopid.algorithms.loop import Agent, SolverInfo
+from loopid.algorithms.plant import Transitions
+from loopid.control.lqr import _dlqr_affine
+from loopid.control.tvlqr import tvlqr
+from loopid.learners import Learner, indexed
+from loopid.models.linear_offset import (
+    LinearOffsetModel,
+    features,
+    per_sample_loss,
+    residual_targets,
+    to_matrices,
+)
+
+
+def finite_horizon_gains(A, B, Q, R, horizon: int) -> jax.Array:
+    """Gains ``K [horizon, m, n]`` of the finite-horizon LQR on ``A [(T,) n, n]``,
+    ``B [(T,) n, m]`` (no time axis: the same at every step), stage cost ``xᵀQx + uᵀRu`` and
+    terminal cost ``xᵀQx`` (u_t = −K_t x_t)."""
+    return tvlqr(A, B, Q, R, Q_T=Q, T=horizon).K
+
+
+def linear_agent(
+    model: LinearOffsetModel, learner: Learner, Q: jax.Array, R: jax.Array, horizon: int
+) -> Agent:
+    """An :class:`~loopid.algorithms.loop.Agent` for a (time-varying) linear offset model.
+
+    ``model.A``: ``[n, n]`` (time-invariant) or ``[horizon, n, n]`` (time-varying: one offset pair
+    per step, the learner is :func:`loopid.learners.indexed` over the steps).
+    """
+    tv = model.time_varying
+    if tv and model.A.shape[0] != horizon:
+        raise ValueError(
+            f"time-varying model has {model.A.shape[0]} steps, the horizon is {horizon}"
+        )
+    n, m = model.n, model.m
+    fitter = indexed(learner, horizon) if tv else learner
+    Q = jnp.asarray(Q, jnp.float64)
+    R = jnp.asarray(R, jnp.float64)
+
+    def data(batch: Transitions):
+        t = batch.t if tv else None
+        z = features(batch.dx, batch.du)
+        y = residual_targets(model, batch.dx, batch.du, batch.dx_next, t)
+        return z, y, t
+
+    def init():
+        return fitter.init(n + m, n)
+
+    def update(state, batch: Transitions):
+        z, y, t = data(batch)
+        if tv:
+            return fitter.update(state, z, y, batch.mask, index=t)
+        return fitter.update(state, z, y, batch.mask)
+
+    def loss(state, batch: Transitions):
+        W = fitter.weights(state)
+        return per_sample_loss(model, W, batch.dx, batch.du, batch.dx_next, batch.t if tv else None)
+
+    def policy(state):
+        A, B = to_matrices(model, fitter.weights(state))
+        if tv:
+            K = finite_horizon_gains(A, B, Q, R, horizon)
+            ok = jnp.all(jnp.isfinite(K))
+            K = jnp.where(ok, K, 0.0)
+            return K, SolverInfo(ok, jnp.float64(0.0))
+        sol = _dlqr_affine(A, B, Q, R)
+        K_fh = finite_horizon_gains(A, B, Q, R, horizon)[0]
+        K = jnp.where(sol.converged, sol.K, K_fh)
+        K = jnp.where(jnp.all(jnp.isfinite(K)), K, 0.0)
+        return jnp.broadcast_to(K, (horizon, m, n)), SolverInfo(sol.converged, sol.spectral_radius)
+
+    return Agent(init, update, policy, loss)

@@ -1,0 +1,199 @@
+"""The real system as the loop sees it: rollouts, generative queries and test evaluation.
+
+A *plant* wraps a JAX system and its task (target trajectory, cost, noise, delay) into the three
+pure operations that Algorithm 1 of Ross & Bagnell (2012) needs:
+
+- ``rollout(K, key, action_std)``: run the affine policy ``u_t = −K_τ Δx_t (+ ε_t)`` from the start
+  state μ for ``horizon`` steps, restarting from μ whenever a training trajectory leaves the safe
+  region ``‖[Δx_{:−1}; Δu]‖₂ > stop_norm`` (SPEC §4.4) or the task horizon ends. Returns every
+  step as a transition with a validity mask (fixed shape ``[horizon]``).
+- ``query(x, du, t, key)``: the generative model: set the system to raw state ``x`` at target time
+  ``t``, apply ``du``, observe ``x'`` (SPEC §3: with delay d the pending FIFO holds ``du`` for
+  ``nu_pending="hold"``, zeros for ``"zero"``).
+- ``test_costs(K, key, n_test)``: ``n_test`` noisy test trajectories over the whole target, no early
+  stop; each total cost ``Σ Δx_tᵀQΔx_t + Σ Δu_tᵀRΔu_t`` capped at ``cost_cap``; a trajectory that
+  reaches the cap or a non-finite state is counted as diverged. No NaN leaves this function.
+
+Policies are time-varying affine gains in error coordinates, ``K: [horizon, m, n]``: the error
+state ends with the constant 1, so the last column of ``K_t`` is the feedforward term.
+"""
+
+from collections.abc import Callable
+from typing import NamedTuple
+
+import jax
+import jax.numpy as jnp
+
+from loopid.systems import helicopter
+from loopid.systems.tasks import Task
+
+
+class Transitions(NamedTuple):
+    """A fixed-shape batch of recorded transitions ``(x_t, Δu_t, x_{t+1})``; leading axis ``[b]``.
+
+    ``x`` is the raw 21-dim state (needed to query the system again), ``dx``/``dx_next`` the error
+    coordinates relative to ``target[t]``/``target[t+1]``, ``t`` the target time index (int32),
+    ``mask`` which rows hold real data. Masked rows are zero-filled, never NaN.
+    """
+
+    x: jax.Array
+    dx: jax.Array
+    du: jax.Array
+    dx_next: jax.Array
+    t: jax.Array
+    mask: jax.Array
+
+
+def clean(tr: Transitions) -> Transitions:
+    """Invalidate rows with non-finite numbers and zero-fill every invalid row."""
+    finite = (
+        jnp.all(jnp.isfinite(tr.x), axis=-1)
+        & jnp.all(jnp.isfinite(tr.dx), axis=-1)
+        & jnp.all(jnp.isfinite(tr.du), axis=-1)
+        & jnp.all(jnp.isfinite(tr.dx_next), axis=-1)
+    )
+    mask = tr.mask & finite
+
+    def zero(a):
+        return jnp.where(mask.reshape(mask.shape + (1,) * (a.ndim - 1)), a, jnp.zeros_like(a))
+
+    return Transitions(zero(tr.x), zero(tr.dx), zero(tr.du), zero(tr.dx_next), tr.t, mask)
+
+
+def select(take_first: jax.Array, a: Transitions, b: Transitions) -> Transitions:
+    """Row-wise choice: row i of ``a`` where ``take_first[i]``, else row i of ``b``."""
+
+    def pick(u, v):
+        return jnp.where(take_first.reshape(take_first.shape + (1,) * (u.ndim - 1)), u, v)
+
+    return Transitions(*(pick(u, v) for u, v in zip(a, b, strict=True)))
+
+
+def draw(tr: Transitions, key: jax.Array, n: int) -> Transitions:
+    """Draw ``n`` rows uniformly without replacement among the valid rows of ``tr``.
+
+    Gumbel top-k over ``log(mask)``: fixed shapes, and when fewer than ``n`` rows are valid the
+    surplus draws are invalid rows (masked), never duplicates.
+    """
+    b = tr.mask.shape[0]
+    if n > b:
+        raise ValueError(f"cannot draw n={n} rows from a batch of {b}")
+    scores = jax.random.gumbel(key, (b,)) + jnp.where(tr.mask, 0.0, -jnp.inf)
+    _, idx = jax.lax.top_k(scores, n)
+    return jax.tree_util.tree_map(lambda a: a[idx], tr)
+
+
+def flatten(tr: Transitions) -> Transitions:
+    """Merge the two leading axes ``[R, T]`` of stacked rollouts into one ``[R·T]``."""
+    return jax.tree_util.tree_map(lambda a: a.reshape((-1, *a.shape[2:])), tr)
+
+
+class Plant(NamedTuple):
+    """The operations of one real system and task (module docstring); pure and jittable."""
+
+    task: Task
+    horizon: int
+    n_state: int
+    n_action: int
+    rollout: Callable[..., Transitions]
+    query: Callable[..., Transitions]
+    test_one: Callable[..., tuple[jax.Array, jax.Array]]
+
+    def test_costs(self, K: jax.Array, key: jax.Array, n_test: int) -> tuple[jax.Array, jax.Array]:
+        """Capped costs ``[n_test]`` and diverged flags of ``n_test`` test trajectories of ``K``.
+
+        Trajectory ``i`` uses ``jax.random.split(key, n_test)[i]``: the same key gives the same
+        noise to every policy (common random numbers).
+        """
+        return jax.vmap(lambda k: self.test_one(K, k))(jax.random.split(key, n_test))
+
+
+def helicopter_plant(
+    task: Task,
+    *,
+    stop_norm: float = 5.0,
+    nu_pending: str = "hold",
+    cost_cap: float = 1e8,
+) -> Plant:
+    """The helicopter of SPEC §3 under ``task`` as a :class:`Plant`.
+
+    Args:
+      task: a :class:`loopid.systems.tasks.Task` (target ``[T, 21]``, noise std, delay, Q, R, x0).
+      stop_norm: training trajectories restart from μ when ``‖[Δx_{0:20}; Δu]‖₂ > stop_norm``.
+      nu_pending: delayed-query convention for ν samples, ``"hold"`` or ``"zero"`` (SPEC §3).
+      cost_cap: a test trajectory's total cost is capped here and then counts as diverged.
+    """
+    if nu_pending not in ("hold", "zero"):
+        raise ValueError(f"nu_pending must be 'hold' or 'zero', got {nu_pending!r}")
+    if not stop_norm > 0:
+        raise ValueError(f"stop_norm must be > 0, got {stop_norm!r}")
+    if not cost_cap > 0:
+        raise ValueError(f"cost_cap must be > 0, got {cost_cap!r}")
+    target = jnp.asarray(task.target, dtype=jnp.float64)
+    x0 = jnp.asarray(task.x0, dtype=jnp.float64)
+    Q = jnp.asarray(task.Q, dtype=jnp.float64)
+    R = jnp.asarray(task.R, dtype=jnp.float64)
+    d = int(task.delay)
+    std = float(task.noise_std)
+    horizon = int(target.shape[0]) - 1
+    m = helicopter.N_ACTION
+    n = helicopter.N_STATE
+    fifo0 = jnp.zeros((d, m), dtype=jnp.float64)
+
+    def rollout(K: jax.Array, key: jax.Array, action_std: float | jax.Array = 0.0) -> Transitions:
+        """One training run of ``horizon`` steps with restarts; ``K: [horizon, m, n]``."""
+        k_noise, k_act = jax.random.split(key)
+        noise = helicopter.noise_sequence(k_noise, horizon, std)
+        eps = action_std * jax.random.normal(k_act, (horizon, m), dtype=jnp.float64)
+
+        def body(carry, inp):
+            x, fifo, tau = carry
+            w, e = inp
+            dx = helicopter.to_error(x, target[tau])
+            du = -K[tau] @ dx + e
+            size = jnp.linalg.norm(jnp.concatenate([dx[:-1], du]))
+            safe = jnp.isfinite(size) & (size <= stop_norm)
+            x_next, fifo_next = helicopter.step_delayed(x, fifo, du, w)
+            dx_next = helicopter.to_error(x_next, target[tau + 1])
+            restart = ~safe | (tau + 1 >= horizon)
+            carry = (
+                jnp.where(restart, x0, x_next),
+                jnp.where(restart, fifo0, fifo_next),
+                jnp.where(restart, 0, tau + 1),
+            )
+            return carry, Transitions(x, dx, du, dx_next, tau, safe)
+
+        _, tr = jax.lax.scan(body, (x0, fifo0, jnp.int32(0)), (noise, eps))
+        return clean(tr)
+
+    def query(x: jax.Array, du: jax.Array, t: jax.Array, key: jax.Array) -> Transitions:
+        """One generative query at raw state ``x``, change ``du``, target time ``t`` (unbatched)."""
+        w = helicopter.noise_sequence(key, 1, std)[0]
+        fifo = jnp.broadcast_to(du, (d, m)) if nu_pending == "hold" else fifo0
+        x_next, _ = helicopter.step_delayed(x, fifo, du, w)
+        dx = helicopter.to_error(x, target[t])
+        dx_next = helicopter.to_error(x_next, target[t + 1])
+        one = Transitions(x[None], dx[None], du[None], dx_next[None], t[None], jnp.ones(1, bool))
+        return jax.tree_util.tree_map(lambda a: a[0], clean(one))
+
+    def test_one(K: jax.Array, k: jax.Array) -> tuple[jax.Array, jax.Array]:
+        """Capped total cost and diverged flag of one noisy test trajectory of ``K``."""
+        noise = helicopter.noise_sequence(k, horizon, std)
+
+        def body(carry, inp):
+            x, fifo, total = carry
+            w, tau = inp
+            dx = helicopter.to_error(x, target[tau])
+            du = -K[tau] @ dx
+            total = total + dx @ Q @ dx + du @ R @ du
+            x, fifo = helicopter.step_delayed(x, fifo, du, w)
+            return (x, fifo, total), None
+
+        taus = jnp.arange(horizon, dtype=jnp.int32)
+        (x, _, total), _ = jax.lax.scan(body, (x0, fifo0, jnp.float64(0.0)), (noise, taus))
+        dx = helicopter.to_error(x, target[horizon])
+        total = total + dx @ Q @ dx
+        diverged = ~jnp.isfinite(total) | (total >= cost_cap)
+        return jnp.where(diverged, cost_cap, total), diverged
+
+    return Plant(task, horizon, n, m, rollout, query, test_one)

@@ -1,0 +1,76 @@
+"""Result tables: one row per scenario × method × seed × iteration, stored as Parquet (pyarrow).
+
+Columns (types fixed by :data:`SCHEMA`): ``scenario, method, seed, iteration, samples`` (the
+transitions collected before that iteration's policy was solved), ``test_cost`` (mean capped
+total cost over the test trajectories), ``test_cost_median``, ``diverged`` (test trajectories
+that hit the cap or a non-finite state), and the diagnostics of :class:`loopid.algorithms.loop.Row`
+(``loss_nu``, ``loss_policy``, ``online_loss``, ``policy_samples``, ``valid_samples``,
+``solver_converged``, ``spectral_radius``). Files are written atomically (temporary name, then
+rename), so a killed run never leaves a half-written table.
+"""
+
+import os
+from pathlib import Path
+
+import numpy as np
+import pyarrow as pa
+import pyarrow.parquet as pq
+
+from loopid.algorithms.loop import Row, Trace
+
+SCHEMA = pa.schema(
+    [
+        ("scenario", pa.string()),
+        ("method", pa.string()),
+        ("seed", pa.int64()),
+        ("iteration", pa.int64()),
+        ("samples", pa.int64()),
+        ("test_cost", pa.float64()),
+        ("test_cost_median", pa.float64()),
+        ("diverged", pa.int64()),
+        ("loss_nu", pa.float64()),
+        ("loss_policy", pa.float64()),
+        ("online_loss", pa.float64()),
+        ("policy_samples", pa.int64()),
+        ("valid_samples", pa.int64()),
+        ("solver_converged", pa.bool_()),
+        ("spectral_radius", pa.float64()),
+    ]
+)
+
+
+def trace_table(scenario: str, method: str, trace: Trace) -> pa.Table:
+    """The rows of one cell, seed-major then iteration; raises if any value is NaN."""
+    S, N = trace.rows.test_cost.shape
+    cols: dict[str, np.ndarray] = {
+        "scenario": np.full(S * N, scenario, dtype=object),
+        "method": np.full(S * N, method, dtype=object),
+        "seed": np.repeat(trace.seeds, N),
+        "iteration": np.tile(trace.iteration, S),
+        "samples": np.tile(trace.samples, S),
+    }
+    for name in Row._fields:
+        cols[name] = np.asarray(getattr(trace.rows, name)).reshape(S * N)
+    for name, v in cols.items():
+        if v.dtype.kind == "f" and not np.isfinite(v).all():
+            raise ValueError(f"column {name!r} of {scenario}/{method} holds non-finite values")
+    return pa.table({f.name: pa.array(cols[f.name], type=f.type) for f in SCHEMA}, schema=SCHEMA)
+
+
+def write_atomic(table: pa.Table, path: Path) -> None:
+    """Write ``table`` to ``path`` through a temporary file in the same folder and a rename."""
+    path = Path(path)
+    tmp = path.with_name(f".{path.name}.tmp-{os.getpid()}")
+    pq.write_table(table, tmp)
+    os.replace(tmp, path)
+
+
+def read_table(path: Path) -> pa.Table:
+    """Read a results table (one file, or a folder of cell files) with the loopid schema."""
+    path = Path(path)
+    if path.is_dir():
+        files = sorted(p for p in path.glob("*.parquet") if not p.name.startswith("."))
+        if not files:
+            return SCHEMA.empty_table()
+        return pa.concat_tables([pq.read_table(f, schema=SCHEMA) for f in files])
+    return pq.read_table(path, schema=SCHEMA)

@@ -1,0 +1,138 @@
+"""One entry point for every method: ``run(method, scenario, seeds) -> Trace``.
+
+Builds the plant (real system + task), the linearised expert L, the model-based agent and the
+exploration distribution for a :class:`~loopid.experiments.scenarios.Scenario`, then runs the
+method on all seeds at once (:mod:`loopid.algorithms.loop`).
+"""
+
+from collections.abc import Callable
+from functools import lru_cache
+from typing import NamedTuple
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from loopid.algorithms import methods as M
+from loopid.algorithms.expert import expert_gains
+from loopid.algorithms.loop import Row, Trace, run_fixed_policy, run_learning
+from loopid.algorithms.model_based import linear_agent
+from loopid.algorithms.plant import Plant, helicopter_plant
+from loopid.algorithms.policy_gradient import run_policy_gradient
+from loopid.experiments.scenarios import Scenario
+from loopid.exploration import make_nu
+from loopid.learners import ftrl_least_squares
+from loopid.models.linear_offset import LinearOffsetModel, hover_nominal, time_varying_nominal
+from loopid.systems import helicopter
+from loopid.systems.tasks import make_task
+
+
+class Setup(NamedTuple):
+    """What a scenario's methods share: the plant, the expert's gains, the nominal model."""
+
+    plant: Plant
+    K_expert: jax.Array
+    nominal: LinearOffsetModel
+
+
+def nominal_model(plant: Plant) -> LinearOffsetModel:
+    """The initial model every method starts from (SPEC §4.2).
+
+    Time-invariant tasks: A = I, B adds Δu into u_prev and du_prev (the paper's hover model).
+    Time-varying tasks: the true simulator linearised about hover trim, the same at every step,
+    plus the target's own motion ``−(x*_{t+1} ⊖ x*_t)``.
+    """
+    task = plant.task
+    if not task.time_varying:
+        return hover_nominal(helicopter.N_STATE, helicopter.N_ACTION)
+    hover = helicopter.hover_target()
+    A, B = helicopter.linearize(hover, hover)
+    target = jnp.asarray(task.target)
+    inc = jax.vmap(helicopter.target_increment)(target[:-1], target[1:])
+    return time_varying_nominal(A, B, inc)
+
+
+@lru_cache(maxsize=8)
+def _setup_cached(
+    task: str, noise_std, delay, pads: bool, stop_norm, nu_pending, cost_cap
+) -> Setup:
+    t = make_task(task, noise_std=noise_std, delay=delay, pads=pads)
+    plant = helicopter_plant(t, stop_norm=stop_norm, nu_pending=nu_pending, cost_cap=cost_cap)
+    return Setup(plant, expert_gains(t), nominal_model(plant))
+
+
+def setup(s: Scenario) -> Setup:
+    """The shared :class:`Setup` of a scenario (cached: the expert is computed once per task)."""
+    return _setup_cached(
+        s.task, s.noise_std, s.delay, s.pads, s.stop_norm, s.nu_pending, s.cost_cap
+    )
+
+
+def run(
+    method: str,
+    s: Scenario,
+    seeds=None,
+    *,
+    progress: Callable[[int, Row], None] | None = None,
+) -> Trace:
+    """Run ``method`` (:data:`loopid.algorithms.methods.METHODS`) on scenario ``s``.
+
+    ``seeds``: integer seeds (default ``range(s.seeds)``). Returns a :class:`Trace` with one row
+    per seed and iteration; ``progress(n, row)`` is called after every iteration.
+    """
+    M.check_method(method)
+    seeds = np.arange(s.seeds) if seeds is None else np.asarray(seeds)
+    st = setup(s)
+    if method == "expert":
+        return run_fixed_policy(
+            st.plant,
+            st.K_expert,
+            seeds,
+            iterations=s.iterations,
+            samples=s.samples,
+            n_test=s.test_trajectories,
+            progress=progress,
+        )
+    agent = linear_agent(
+        st.nominal,
+        ftrl_least_squares(s.ftrl_lambda),
+        st.plant.task.Q,
+        st.plant.task.R,
+        st.plant.horizon,
+    )
+    if method == "pg":
+        return run_policy_gradient(
+            st.plant,
+            agent,
+            seeds,
+            iterations=s.iterations,
+            samples=s.samples,
+            n_test=s.test_trajectories,
+            horizon=s.pg_horizon,
+            sigma=s.pg_sigma,
+            step=s.pg_step,
+            nu_state_var=s.nu_state_var,
+            progress=progress,
+        )
+    nu = make_nu(
+        M.nu_kind(method),
+        st.plant,
+        st.K_expert,
+        state_var=s.nu_state_var,
+        action_var=s.nu_action_var,
+        expert_action_var=s.expert_action_var,
+    )
+    fractions = M.policy_fractions(method, s.iterations, dagger_fraction=s.dagger_fraction)
+    return run_learning(
+        st.plant,
+        agent,
+        nu,
+        fractions,
+        seeds,
+        samples=s.samples,
+        n_test=s.test_trajectories,
+        mode=s.sampling,
+        gamma=s.gamma,
+        test_policy=s.test_policy,
+        progress=progress,
+    )

@@ -1,0 +1,139 @@
+"""Experiment scenarios: every protocol setting of SPEC §4.4, with SPEC's values as defaults.
+
+A :class:`Scenario` is one frozen record; every *(choice)* of the SPEC is a field, and the whole
+record is written into each run directory's ``config.toml``. ``SCENARIOS`` holds the paper's
+three panels; :func:`scenario` returns one with fields overridden and validated.
+"""
+
+import dataclasses
+import math
+from dataclasses import dataclass
+
+from loopid.algorithms.collect import SAMPLING_MODES
+from loopid.algorithms.loop import TEST_POLICIES
+from loopid.systems.tasks import TASK_NAMES
+
+
+@dataclass(frozen=True)
+class Scenario:
+    """One panel of the paper's Figure 2.
+
+    Attributes:
+      name: the scenario name (``hover``, ``hover-delay``, ``funnel``).
+      task: the helicopter task (:data:`loopid.systems.tasks.TASK_NAMES`).
+      iterations: N, policies per run (iteration 1 is the initial model; N − 1 batches).
+      samples: m, transitions per iteration.
+      test_trajectories: test trajectories per evaluation point (common random numbers).
+      seeds: how many seeds (0..seeds−1).
+      noise_std: process-noise std on force and torque (None: the task's).
+      delay: actuation delay in steps (None: the task's).
+      pads: funnel only: the 600-step target with hover pads (False: the 400-step circle).
+      sampling: the policy half's sampling mode, ``trajectory`` or ``geometric``.
+      gamma: stopping parameter of ``geometric`` sampling (stop w.p. 1 − γ per step).
+      dagger_fraction: DAgger's probability that a slot comes from the current policy.
+      stop_norm: training trajectories restart when ‖[Δx; Δu]‖₂ exceeds this.
+      nu_pending: delayed ν queries: ``hold`` (pending FIFO filled with the action) or ``zero``.
+      nu_state_var, nu_action_var: ν_t's state and action noise variances.
+      expert_action_var: ν_en's action noise variance.
+      ftrl_lambda: λ of the FTRL regulariser (λ/√n)‖W‖²_F.
+      test_policy: ``last``, ``best`` or ``mixture`` (SPEC §1).
+      cost_cap: a test trajectory's total cost is capped here (and counted as diverged).
+      pg_horizon, pg_sigma, pg_step: the policy-gradient baseline's rollout length (steps),
+        perturbation std and normalised step size (see :mod:`loopid.algorithms.policy_gradient`).
+    """
+
+    name: str
+    task: str
+    iterations: int
+    samples: int
+    test_trajectories: int = 100
+    seeds: int = 20
+    noise_std: float | None = None
+    delay: int | None = None
+    pads: bool = True
+    sampling: str = "trajectory"
+    gamma: float = 0.99
+    dagger_fraction: float = 0.5
+    stop_norm: float = 5.0
+    nu_pending: str = "hold"
+    nu_state_var: float = 0.0025
+    nu_action_var: float = 0.0001
+    expert_action_var: float = 0.0001
+    ftrl_lambda: float = 1e-3
+    test_policy: str = "last"
+    cost_cap: float = 1e8
+    pg_horizon: int = 25
+    pg_sigma: float = 0.01
+    pg_step: float = 0.05
+
+    def __post_init__(self) -> None:
+        validate(self)
+
+    def replace(self, **changes) -> "Scenario":
+        """A copy with ``changes``; unknown field names raise ``ValueError`` naming them."""
+        unknown = sorted(set(changes) - {f.name for f in dataclasses.fields(self)})
+        if unknown:
+            raise ValueError(f"unknown scenario field(s): {', '.join(unknown)}")
+        return dataclasses.replace(self, **changes)
+
+    def to_dict(self) -> dict:
+        """The fields as a plain dict (None values dropped, for TOML)."""
+        return {k: v for k, v in dataclasses.asdict(self).items() if v is not None}
+
+
+def _positive_int(name: str, v, minimum: int = 1) -> None:
+    if isinstance(v, bool) or not isinstance(v, int) or v < minimum:
+        raise ValueError(f"{name} must be an integer >= {minimum}, got {v!r}")
+
+
+def _number(name: str, v, low: float, high: float = math.inf, *, open_low=False) -> None:
+    ok = isinstance(v, int | float) and not isinstance(v, bool) and math.isfinite(v)
+    ok = ok and (v > low if open_low else v >= low) and v <= high
+    if not ok:
+        bound = f"({low}, {high}]" if open_low else f"[{low}, {high}]"
+        raise ValueError(f"{name} must be a number in {bound}, got {v!r}")
+
+
+def validate(s: Scenario) -> None:
+    """Raise ``ValueError`` naming the first bad field of ``s`` and what is allowed."""
+    if s.task not in TASK_NAMES:
+        raise ValueError(f"task must be one of {', '.join(TASK_NAMES)}, got {s.task!r}")
+    _positive_int("iterations", s.iterations)
+    _positive_int("samples", s.samples)
+    _positive_int("test_trajectories", s.test_trajectories)
+    _positive_int("seeds", s.seeds)
+    _positive_int("pg_horizon", s.pg_horizon)
+    if s.noise_std is not None:
+        _number("noise_std", s.noise_std, 0.0)
+    if s.delay is not None:
+        _positive_int("delay", s.delay, minimum=0)
+    if s.sampling not in SAMPLING_MODES:
+        raise ValueError(f"sampling must be one of {', '.join(SAMPLING_MODES)}, got {s.sampling!r}")
+    if s.test_policy not in TEST_POLICIES:
+        raise ValueError(
+            f"test_policy must be one of {', '.join(TEST_POLICIES)}, got {s.test_policy!r}"
+        )
+    if s.nu_pending not in ("hold", "zero"):
+        raise ValueError(f"nu_pending must be 'hold' or 'zero', got {s.nu_pending!r}")
+    _number("gamma", s.gamma, 0.0, 1.0 - 1e-12, open_low=True)
+    _number("dagger_fraction", s.dagger_fraction, 0.0, 1.0)
+    _number("stop_norm", s.stop_norm, 0.0, open_low=True)
+    for name in ("nu_state_var", "nu_action_var", "expert_action_var", "ftrl_lambda"):
+        _number(name, getattr(s, name), 0.0)
+    _number("cost_cap", s.cost_cap, 0.0, open_low=True)
+    _number("pg_sigma", s.pg_sigma, 0.0, open_low=True)
+    _number("pg_step", s.pg_step, 0.0, open_low=True)
+
+
+SCENARIOS: dict[str, Scenario] = {
+    "hover": Scenario("hover", "hover", iterations=50, samples=100),
+    "hover-delay": Scenario("hover-delay", "hover-delay", iterations=100, samples=100),
+    "funnel": Scenario("funnel", "funnel", iterations=100, samples=500),
+}
+
+
+def scenario(name: str, **overrides) -> Scenario:
+    """The named scenario of :data:`SCENARIOS` with ``overrides`` (validated)."""
+    if name not in SCENARIOS:
+        raise ValueError(f"unknown scenario {name!r}; choose from {', '.join(SCENARIOS)}")
+    return SCENARIOS[name].replace(**overrides)

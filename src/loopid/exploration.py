@@ -1,0 +1,99 @@
+"""Exploration distributions ν over state-action pairs (SPEC §4.4; paper section 6).
+
+Each sampler is a pure function ``sample(key, m) -> Transitions`` of ``m`` transitions: a pair
+``(s, a) ~ ν`` is drawn and the real system is queried there (its generative model,
+:meth:`Plant.query`) for ``s'``.
+
+- ``ν_t`` (:func:`nu_trajectory`): the desired trajectory with white Gaussian noise: a target
+  time ``t`` uniform on ``{0, …, T−2}``, error state ``Δx = [ξ; 1]`` with ``ξ ~ N(0, σ_s² I)``
+  (σ_s² = 0.0025) mapped back through the error coordinates, action ``Δu ~ N(0, σ_a² I)``
+  (σ_a² = 0.0001).
+- ``ν_e`` (:func:`nu_expert`, ``action_std = 0``): state-action pairs visited by the expert on
+  the real noisy system, drawn uniformly from fresh expert rollouts.
+- ``ν_en`` (:func:`nu_expert`, ``action_std = 0.01``): the same, with ``N(0, 0.0001 I)`` added
+  to the expert's actions while it flies.
+"""
+
+import math
+from collections.abc import Callable
+
+import jax
+import jax.numpy as jnp
+
+from loopid.algorithms.plant import Plant, Transitions, draw, flatten
+from loopid.systems import helicopter
+
+NU_KINDS = ("t", "e", "en")
+
+Sampler = Callable[[jax.Array, int], Transitions]
+
+
+def _query_many(plant: Plant, x, du, t, key) -> Transitions:
+    keys = jax.random.split(key, x.shape[0])
+    return jax.vmap(plant.query)(x, du, t, keys)
+
+
+def nu_trajectory(
+    plant: Plant, *, state_var: float = 0.0025, action_var: float = 0.0001
+) -> Sampler:
+    """``ν_t``: noise around the desired trajectory (state covariance ``state_var·I`` through the
+    error coordinates, action covariance ``action_var·I``)."""
+    if state_var < 0 or action_var < 0:
+        raise ValueError(
+            f"variances must be >= 0, got state_var={state_var}, action_var={action_var}"
+        )
+    target = jnp.asarray(plant.task.target, dtype=jnp.float64)
+    n, m = plant.n_state, plant.n_action
+
+    def sample(key: jax.Array, count: int) -> Transitions:
+        k_t, k_s, k_a, k_q = jax.random.split(key, 4)
+        t = jax.random.randint(k_t, (count,), 0, plant.horizon, dtype=jnp.int32)
+        xi = math.sqrt(state_var) * jax.random.normal(k_s, (count, n - 1), dtype=jnp.float64)
+        dx = jnp.concatenate([xi, jnp.ones((count, 1), jnp.float64)], axis=1)
+        x = jax.vmap(helicopter.from_error)(dx, target[t])
+        du = math.sqrt(action_var) * jax.random.normal(k_a, (count, m), dtype=jnp.float64)
+        return _query_many(plant, x, du, t, k_q)
+
+    return sample
+
+
+def nu_expert(plant: Plant, K_expert: jax.Array, *, action_std: float = 0.0) -> Sampler:
+    """``ν_e`` (``action_std = 0``) or ``ν_en`` (``action_std = 0.01``): the expert's pairs.
+
+    ``K_expert: [horizon, m, n]`` is the expert's affine gain in error coordinates. Each call runs
+    ``ceil(count / horizon)`` fresh expert rollouts (with the action noise), draws ``count`` visited
+    pairs uniformly, and queries the system there.
+    """
+    if action_std < 0:
+        raise ValueError(f"action_std must be >= 0, got {action_std}")
+
+    def sample(key: jax.Array, count: int) -> Transitions:
+        k_roll, k_draw, k_q = jax.random.split(key, 3)
+        runs = -(-count // plant.horizon)
+        tr = jax.vmap(lambda k: plant.rollout(K_expert, k, action_std))(
+            jax.random.split(k_roll, runs)
+        )
+        visited = draw(flatten(tr), k_draw, count)
+        fresh = _query_many(plant, visited.x, visited.du, visited.t, k_q)
+        return fresh._replace(mask=fresh.mask & visited.mask)
+
+    return sample
+
+
+def make_nu(
+    kind: str,
+    plant: Plant,
+    K_expert: jax.Array,
+    *,
+    state_var: float = 0.0025,
+    action_var: float = 0.0001,
+    expert_action_var: float = 0.0001,
+) -> Sampler:
+    """The sampler for ``kind`` in :data:`NU_KINDS` (``"t"``, ``"e"``, ``"en"``)."""
+    if kind == "t":
+        return nu_trajectory(plant, state_var=state_var, action_var=action_var)
+    if kind == "e":
+        return nu_expert(plant, K_expert, action_std=0.0)
+    if kind == "en":
+        return nu_expert(plant, K_expert, action_std=math.sqrt(expert_action_var))
+    raise ValueError(f"unknown exploration distribution {kind!r}; choose one of {NU_KINDS}")
