@@ -103,31 +103,44 @@ def features(dx, du) -> jax.Array:
     return jnp.concatenate([jnp.asarray(dx), jnp.asarray(du)], axis=-1).astype(jnp.float64)
 
 
-def _nominal(model, dx, du, t):
-    A, B = (jnp.asarray(a, dtype=jnp.float64) for a in model)
+def _nominal(A, B, dx, du, t):
     return _apply(_rows(A, t), dx) + _apply(_rows(B, t), du)
+
+
+@jax.jit
+def _residual(A, B, dx, du, dx_next, t):
+    return dx_next - _nominal(A, B, dx, du, t)
+
+
+@jax.jit
+def _predict(A, B, W, dx, du, t):
+    z = jnp.concatenate([dx, du], axis=-1)
+    Wr = _rows(W, t)
+    offset = z @ Wr if Wr.ndim == 2 else jnp.einsum("bf,bfn->bn", z, Wr)
+    return _nominal(A, B, dx, du, t) + offset
+
+
+def _AB(model):
+    return tuple(jnp.asarray(a, dtype=jnp.float64) for a in model)
 
 
 def residual_targets(model: LinearOffsetModel, dx, du, dx_next, t=None) -> jax.Array:
     """y = Δx' − (AΔx + BΔu) [b, n] (A, B taken at each row's step t when time-varying)."""
     dx, du, t, _ = _check_rows(model, dx, du, dx_next, t)
-    return jnp.asarray(dx_next, dtype=jnp.float64) - _nominal(model, dx, du, t)
+    return _residual(*_AB(model), dx, du, jnp.asarray(dx_next, dtype=jnp.float64), t)
 
 
 def predict(model: LinearOffsetModel, W, dx, du, t=None) -> jax.Array:
     """Δx' prediction (A + A')Δx + (B + B')Δu [b, n] with W = [A' B']ᵀ [(T,) n+m, n]."""
     dx, du, t, W = _check_rows(model, dx, du, None, t, W)
-    z = features(dx, du)
-    Wr = _rows(W.astype(jnp.float64), t)
-    offset = z @ Wr if Wr.ndim == 2 else jnp.einsum("bf,bfn->bn", z, Wr)
-    return _nominal(model, dx, du, t) + offset
+    return _predict(*_AB(model), W.astype(jnp.float64), dx, du, t)
 
 
 def per_sample_loss(model: LinearOffsetModel, W, dx, du, dx_next, t=None) -> jax.Array:
     """||Δx' − prediction||² per row [b] (the paper's squared prediction error)."""
-    _check_rows(model, dx, du, dx_next, t, W)
-    err = jnp.asarray(dx_next, dtype=jnp.float64) - predict(model, W, dx, du, t)
-    return jnp.sum(err**2, axis=-1)
+    dx, du, t, W = _check_rows(model, dx, du, dx_next, t, W)
+    pred = _predict(*_AB(model), W.astype(jnp.float64), dx, du, t)
+    return jnp.sum((jnp.asarray(dx_next, dtype=jnp.float64) - pred) ** 2, axis=-1)
 
 
 def to_matrices(model: LinearOffsetModel, W) -> tuple[jax.Array, jax.Array]:
