@@ -3,6 +3,7 @@
 import jax
 import jax.numpy as jnp
 import numpy as np
+import pytest
 
 from loopid.learners import OGDState, ogd, online_loss, regret_curve
 
@@ -67,6 +68,7 @@ def test_converges_to_the_true_model_on_realisable_data(rng):
     np.testing.assert_allclose(np.asarray(s.W), W_true, atol=1e-6)
 
 
+@pytest.mark.slow
 def test_average_regret_falls_like_one_over_sqrt_n():
     """Regress log average regret on log N over noisy random least-squares streams: slope ≈ −1/2."""
     N, b, f, t, seeds = 2048, 10, 5, 3, 4
