@@ -10,9 +10,11 @@ pure operations that Algorithm 1 of Ross & Bagnell (2012) needs:
 - ``query(x, du, t, key)``: the generative model: set the system to raw state ``x`` at target time
   ``t``, apply ``du``, observe ``x'`` (SPEC §3: with delay d the pending FIFO holds ``du`` for
   ``nu_pending="hold"``, zeros for ``"zero"``).
-- ``test_costs(K, key, n_test)``: ``n_test`` noisy test trajectories over the whole target, no early
-  stop; each total cost ``Σ Δx_tᵀQΔx_t + Σ Δu_tᵀRΔu_t`` capped at ``cost_cap``; a trajectory that
-  reaches the cap or a non-finite state is counted as diverged. No NaN leaves this function.
+- ``test_noise(key, n_test)``: the process noise ``[n_test, horizon, 6]`` of ``n_test`` test
+  trajectories (trajectory i from ``jax.random.split(key, n_test)[i]``).
+- ``test_costs(K, noise)``: the test trajectories driven by that noise over the whole target,
+  no early stop; each total cost ``Σ Δx_tᵀQΔx_t + Σ Δu_tᵀRΔu_t`` is capped at ``cost_cap``, and
+  one that reaches the cap or a non-finite state counts as diverged. No NaN leaves here.
 
 Policies are time-varying affine gains in error coordinates, ``K: [horizon, m, n]``: the error
 state ends with the constant 1, so the last column of ``K_t`` is the feedforward term.
@@ -98,14 +100,17 @@ class Plant(NamedTuple):
     rollout: Callable[..., Transitions]
     query: Callable[..., Transitions]
     test_one: Callable[..., tuple[jax.Array, jax.Array]]
+    noise_std: float
 
-    def test_costs(self, K: jax.Array, key: jax.Array, n_test: int) -> tuple[jax.Array, jax.Array]:
-        """Capped costs ``[n_test]`` and diverged flags of ``n_test`` test trajectories of ``K``.
+    def test_noise(self, key: jax.Array, n_test: int) -> jax.Array:
+        """Process noise ``[n_test, horizon, 6]`` of ``n_test`` test trajectories."""
+        keys = jax.random.split(key, n_test)
+        return jax.vmap(lambda k: helicopter.noise_sequence(k, self.horizon, self.noise_std))(keys)
 
-        Trajectory ``i`` uses ``jax.random.split(key, n_test)[i]``: the same key gives the same
-        noise to every policy (common random numbers).
-        """
-        return jax.vmap(lambda k: self.test_one(K, k))(jax.random.split(key, n_test))
+    def test_costs(self, K: jax.Array, noise: jax.Array) -> tuple[jax.Array, jax.Array]:
+        """Capped costs ``[n_test]`` and diverged flags of the test trajectories of ``K`` driven by
+        ``noise [n_test, horizon, 6]`` (the same noise for every policy: common random numbers)."""
+        return jax.vmap(lambda w: self.test_one(K, w))(noise)
 
 
 def helicopter_plant(
@@ -176,9 +181,9 @@ def helicopter_plant(
         one = Transitions(x[None], dx[None], du[None], dx_next[None], t[None], jnp.ones(1, bool))
         return jax.tree_util.tree_map(lambda a: a[0], clean(one))
 
-    def test_one(K: jax.Array, k: jax.Array) -> tuple[jax.Array, jax.Array]:
-        """Capped total cost and diverged flag of one noisy test trajectory of ``K``."""
-        noise = helicopter.noise_sequence(k, horizon, std)
+    def test_one(K: jax.Array, noise: jax.Array) -> tuple[jax.Array, jax.Array]:
+        """Capped total cost and diverged flag of one test trajectory of ``K`` under process
+        noise ``[horizon, 6]``."""
 
         def body(carry, inp):
             x, fifo, total = carry
@@ -196,4 +201,4 @@ def helicopter_plant(
         diverged = ~jnp.isfinite(total) | (total >= cost_cap)
         return jnp.where(diverged, cost_cap, total), diverged
 
-    return Plant(task, horizon, n, m, rollout, query, test_one)
+    return Plant(task, horizon, n, m, rollout, query, test_one, std)

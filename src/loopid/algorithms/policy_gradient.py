@@ -23,11 +23,11 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from loopid.algorithms.loop import Agent, Row, Trace, _trace, seed_keys
+from loopid.algorithms.loop import Agent, Row, Trace, _trace, seed_keys, test_noise
 from loopid.algorithms.plant import Plant
 from loopid.systems import helicopter
 
-_TRAIN, _TEST = 1, 2
+_TRAIN = 1
 
 
 def run_policy_gradient(
@@ -75,9 +75,8 @@ def run_policy_gradient(
         (_, _, total), _ = jax.lax.scan(body, (x, fifo0, jnp.float64(0.0)), (noise, jnp.arange(H)))
         return jnp.where(jnp.isfinite(total), jnp.minimum(total, cap), cap)
 
-    def evaluate(theta, key, it):
-        k = jax.random.fold_in(jax.random.fold_in(key, _TEST), it)
-        costs, div = plant.test_costs(K1 + theta, k, n_test)
+    def evaluate(theta, noise):
+        costs, div = plant.test_costs(K1 + theta, noise)
         zero = jnp.float64(0.0)
         return Row(
             jnp.mean(costs),
@@ -92,7 +91,7 @@ def run_policy_gradient(
             info.spectral_radius,
         )
 
-    def pg_step(theta, key, it):
+    def pg_step(theta, key, noise, it):
         k = jax.random.fold_in(jax.random.fold_in(key, _TRAIN), it)
         k_tau, k_x, k_delta, k_noise = jax.random.split(k, 4)
         tau = jax.random.randint(k_tau, (pairs,), 0, plant.horizon - H + 1)
@@ -111,17 +110,18 @@ def run_policy_gradient(
         norm = jnp.linalg.norm(g)
         g = jnp.where(jnp.isfinite(norm) & (norm > 0), g / jnp.maximum(norm, 1e-300), 0.0)
         theta = theta - step * g.reshape(m, n)
-        return theta, evaluate(theta, key, it)
+        return theta, evaluate(theta, noise)
 
-    start = jax.jit(jax.vmap(lambda key: evaluate(jnp.zeros((m, n)), key, 1)))
-    advance = jax.jit(jax.vmap(pg_step, in_axes=(0, 0, None)))
+    noise = test_noise(plant, keys, n_test, "last").test
+    start = jax.jit(jax.vmap(lambda w: evaluate(jnp.zeros((m, n)), w)))
+    advance = jax.jit(jax.vmap(pg_step, in_axes=(0, 0, 0, None)))
     theta = jnp.zeros((keys.shape[0], m, n))
-    row = start(keys)
+    row = start(noise)
     rows = [row]
     if progress:
         progress(1, row)
     for it in range(2, iterations + 1):
-        theta, row = advance(theta, keys, jnp.int32(it))
+        theta, row = advance(theta, keys, noise, jnp.int32(it))
         rows.append(row)
         if progress:
             progress(it, row)
