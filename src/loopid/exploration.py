@@ -21,7 +21,6 @@ import jax
 import jax.numpy as jnp
 
 from loopid.algorithms.plant import Plant, Transitions, draw, flatten
-from loopid.systems import helicopter
 
 NU_KINDS = ("t", "e", "en")
 
@@ -50,7 +49,7 @@ def nu_trajectory(
         t = jax.random.randint(k_t, (count,), 0, plant.horizon, dtype=jnp.int32)
         xi = math.sqrt(state_var) * jax.random.normal(k_s, (count, n - 1), dtype=jnp.float64)
         dx = jnp.concatenate([xi, jnp.ones((count, 1), jnp.float64)], axis=1)
-        x = jax.vmap(helicopter.from_error)(dx, target[t])
+        x = jax.vmap(plant.dynamics.from_error)(dx, target[t])
         du = math.sqrt(action_var) * jax.random.normal(k_a, (count, m), dtype=jnp.float64)
         return _query_many(plant, x, du, t, k_q)
 

@@ -27,6 +27,7 @@ import jax
 import jax.numpy as jnp
 
 from loopid.systems import helicopter
+from loopid.systems.base import Dynamics
 from loopid.systems.tasks import Task
 
 
@@ -101,11 +102,13 @@ class Plant(NamedTuple):
     query: Callable[..., Transitions]
     test_one: Callable[..., tuple[jax.Array, jax.Array]]
     noise_std: float
+    dynamics: Dynamics
 
     def test_noise(self, key: jax.Array, n_test: int) -> jax.Array:
-        """Process noise ``[n_test, horizon, 6]`` of ``n_test`` test trajectories."""
+        """Process noise ``[n_test, horizon, n_noise]`` of ``n_test`` test trajectories."""
         keys = jax.random.split(key, n_test)
-        return jax.vmap(lambda k: helicopter.noise_sequence(k, self.horizon, self.noise_std))(keys)
+        sequence = self.dynamics.noise_sequence
+        return jax.vmap(lambda k: sequence(k, self.horizon, self.noise_std))(keys)
 
     def test_costs(self, K: jax.Array, noise: jax.Array) -> tuple[jax.Array, jax.Array]:
         """Capped costs ``[n_test]`` and diverged flags of the test trajectories of ``K`` driven by
@@ -113,17 +116,34 @@ class Plant(NamedTuple):
         return jax.vmap(lambda w: self.test_one(K, w))(noise)
 
 
-def helicopter_plant(
+HELICOPTER = Dynamics(
+    helicopter.step_delayed,
+    helicopter.to_error,
+    helicopter.from_error,
+    helicopter.noise_sequence,
+    helicopter.N_STATE,
+    helicopter.N_ACTION,
+)
+
+
+def helicopter_plant(task: Task, **options) -> Plant:
+    """The helicopter of SPEC §3 under ``task`` (options as :func:`make_plant`)."""
+    return make_plant(task, HELICOPTER, **options)
+
+
+def make_plant(
     task: Task,
+    dynamics: Dynamics,
     *,
     stop_norm: float = 5.0,
     nu_pending: str = "hold",
     cost_cap: float = 1e8,
 ) -> Plant:
-    """The helicopter of SPEC §3 under ``task`` as a :class:`Plant`.
+    """A JAX system (:class:`loopid.systems.base.Dynamics`) under ``task`` as a :class:`Plant`.
 
     Args:
-      task: a :class:`loopid.systems.tasks.Task` (target ``[T, 21]``, noise std, delay, Q, R, x0).
+      task: a :class:`loopid.systems.tasks.Task` (target ``[T, k]``, noise std, delay, Q, R, x0).
+      dynamics: the system's step, error coordinates and noise.
       stop_norm: training trajectories restart from μ when ``‖[Δx_{0:20}; Δu]‖₂ > stop_norm``.
       nu_pending: delayed-query convention for ν samples, ``"hold"`` or ``"zero"`` (SPEC §3).
       cost_cap: a test trajectory's total cost is capped here and then counts as diverged.
@@ -141,25 +161,26 @@ def helicopter_plant(
     d = int(task.delay)
     std = float(task.noise_std)
     horizon = int(target.shape[0]) - 1
-    m = helicopter.N_ACTION
-    n = helicopter.N_STATE
+    m = dynamics.n_action
+    n = dynamics.n_error
+    step_delayed, to_error = dynamics.step_delayed, dynamics.to_error
     fifo0 = jnp.zeros((d, m), dtype=jnp.float64)
 
     def rollout(K: jax.Array, key: jax.Array, action_std: float | jax.Array = 0.0) -> Transitions:
         """One training run of ``horizon`` steps with restarts; ``K: [horizon, m, n]``."""
         k_noise, k_act = jax.random.split(key)
-        noise = helicopter.noise_sequence(k_noise, horizon, std)
+        noise = dynamics.noise_sequence(k_noise, horizon, std)
         eps = action_std * jax.random.normal(k_act, (horizon, m), dtype=jnp.float64)
 
         def body(carry, inp):
             x, fifo, tau = carry
             w, e = inp
-            dx = helicopter.to_error(x, target[tau])
+            dx = to_error(x, target[tau])
             du = -K[tau] @ dx + e
             size = jnp.linalg.norm(jnp.concatenate([dx[:-1], du]))
             safe = jnp.isfinite(size) & (size <= stop_norm)
-            x_next, fifo_next = helicopter.step_delayed(x, fifo, du, w)
-            dx_next = helicopter.to_error(x_next, target[tau + 1])
+            x_next, fifo_next = step_delayed(x, fifo, du, w)
+            dx_next = to_error(x_next, target[tau + 1])
             restart = ~safe | (tau + 1 >= horizon)
             carry = (
                 jnp.where(restart, x0, x_next),
@@ -173,11 +194,11 @@ def helicopter_plant(
 
     def query(x: jax.Array, du: jax.Array, t: jax.Array, key: jax.Array) -> Transitions:
         """One generative query at raw state ``x``, change ``du``, target time ``t`` (unbatched)."""
-        w = helicopter.noise_sequence(key, 1, std)[0]
+        w = dynamics.noise_sequence(key, 1, std)[0]
         fifo = jnp.broadcast_to(du, (d, m)) if nu_pending == "hold" else fifo0
-        x_next, _ = helicopter.step_delayed(x, fifo, du, w)
-        dx = helicopter.to_error(x, target[t])
-        dx_next = helicopter.to_error(x_next, target[t + 1])
+        x_next, _ = step_delayed(x, fifo, du, w)
+        dx = to_error(x, target[t])
+        dx_next = to_error(x_next, target[t + 1])
         one = Transitions(x[None], dx[None], du[None], dx_next[None], t[None], jnp.ones(1, bool))
         return jax.tree_util.tree_map(lambda a: a[0], clean(one))
 
@@ -188,17 +209,17 @@ def helicopter_plant(
         def body(carry, inp):
             x, fifo, total = carry
             w, tau = inp
-            dx = helicopter.to_error(x, target[tau])
+            dx = to_error(x, target[tau])
             du = -K[tau] @ dx
             total = total + dx @ Q @ dx + du @ R @ du
-            x, fifo = helicopter.step_delayed(x, fifo, du, w)
+            x, fifo = step_delayed(x, fifo, du, w)
             return (x, fifo, total), None
 
         taus = jnp.arange(horizon, dtype=jnp.int32)
         (x, _, total), _ = jax.lax.scan(body, (x0, fifo0, jnp.float64(0.0)), (noise, taus))
-        dx = helicopter.to_error(x, target[horizon])
+        dx = to_error(x, target[horizon])
         total = total + dx @ Q @ dx
         diverged = ~jnp.isfinite(total) | (total >= cost_cap)
         return jnp.where(diverged, cost_cap, total), diverged
 
-    return Plant(task, horizon, n, m, rollout, query, test_one, std)
+    return Plant(task, horizon, n, m, rollout, query, test_one, std, dynamics)

@@ -25,7 +25,6 @@ import numpy as np
 
 from loopid.algorithms.loop import Agent, Row, Trace, _trace, seed_keys, test_noise
 from loopid.algorithms.plant import Plant
-from loopid.systems import helicopter
 
 _TRAIN = 1
 
@@ -59,16 +58,16 @@ def run_policy_gradient(
     std = float(plant.task.noise_std)
 
     def short_cost(K, x, tau0, key):
-        noise = helicopter.noise_sequence(key, H, std)
+        noise = plant.dynamics.noise_sequence(key, H, std)
 
         def body(carry, inp):
             x, fifo, total = carry
             w, k = inp
             tau = tau0 + k
-            dx = helicopter.to_error(x, target[tau])
+            dx = plant.dynamics.to_error(x, target[tau])
             du = -K[tau] @ dx
             total = total + dx @ Q @ dx + du @ R @ du
-            x, fifo = helicopter.step_delayed(x, fifo, du, w)
+            x, fifo = plant.dynamics.step_delayed(x, fifo, du, w)
             return (x, fifo, total), None
 
         fifo0 = jnp.zeros((d, m), jnp.float64)
@@ -97,7 +96,7 @@ def run_policy_gradient(
         tau = jax.random.randint(k_tau, (pairs,), 0, plant.horizon - H + 1)
         xi = jnp.sqrt(nu_state_var) * jax.random.normal(k_x, (pairs, n - 1), jnp.float64)
         dx0 = jnp.concatenate([xi, jnp.ones((pairs, 1))], axis=1)
-        x0 = jax.vmap(helicopter.from_error)(dx0, target[tau])
+        x0 = jax.vmap(plant.dynamics.from_error)(dx0, target[tau])
         delta = sigma * jax.random.normal(k_delta, (pairs, m, n), jnp.float64)
         nk = jax.random.split(k_noise, pairs)
         plus = jax.vmap(lambda dl, x, t, kk: short_cost(K1 + theta + dl, x, t, kk))(
