@@ -191,15 +191,21 @@ def _dlqr_single(A, B, Q, R, N, max_iter, tol, rtol_residual, newton_steps=2) ->
     P, iterations, met = _sda(A0, G0, Q0, max_iter, tol)
     P = _finite_or_zero(P)
     K, residual = _gain_and_residual(A, B, Q, R, N, P)
+
     # Defect correction: Newton (Kleinman-Hewer) steps recover the digits the doubling loses
     # when R is tiny (G = BR⁻¹Bᵀ huge); kept only where they lower the residual.
-    for _ in range(newton_steps):
+    def refine(_, carry):
+        P, K, residual = carry
         P1 = _newton_step(A, B, Q, R, N, K, max_iter)
         K1, residual1 = _gain_and_residual(A, B, Q, R, N, P1)
         better = met & (residual1 < residual)
-        P = jnp.where(better, P1, P)
-        K = jnp.where(better, K1, K)
-        residual = jnp.where(better, residual1, residual)
+        return (
+            jnp.where(better, P1, P),
+            jnp.where(better, K1, K),
+            jnp.where(better, residual1, residual),
+        )
+
+    P, K, residual = jax.lax.fori_loop(0, newton_steps, refine, (P, K, residual))
     rho = jnp.max(jnp.abs(jnp.linalg.eigvals(A - B @ K)))
     rho = jnp.where(jnp.isfinite(rho), rho, jnp.inf)
     converged = met & (residual <= rtol_residual) & (rho < 1.0)
