@@ -1,4 +1,4 @@
-"""Strict numerics for every test: float64, strict dtype promotion, warnings as errors (pyproject)."""
+"""Strict numerics for every test: float64, strict dtype promotion, warnings as errors."""
 
 import jax
 import numpy as np
@@ -16,7 +16,8 @@ def tree_allclose(a, b, *, rtol=1e-10, atol=1e-12) -> bool:
     lb, tb = jax.tree_util.tree_flatten(b)
     if ta != tb:
         return False
-    return all(np.allclose(np.asarray(x), np.asarray(y), rtol=rtol, atol=atol) for x, y in zip(la, lb))
+    pairs = zip(la, lb, strict=True)
+    return all(np.allclose(np.asarray(x), np.asarray(y), rtol=rtol, atol=atol) for x, y in pairs)
 
 
 @pytest.fixture

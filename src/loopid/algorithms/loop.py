@@ -263,12 +263,15 @@ def run_learning(
     gamma: float = 0.99,
     test_policy: str = "last",
     progress: Callable[[int, Row], None] | None = None,
+    cell=None,
 ) -> Trace:
     """Run one learning method for ``len(fractions)`` iterations on every seed.
 
     ``fractions[n−1]`` is the probability ``p_n`` that a slot of iteration n's batch comes from
     the policy (``fractions[0]`` is unused: iteration 1 collects nothing). ``progress(n, row)`` is
-    called after each iteration with that iteration's :class:`Row` (leaves ``[S]``).
+    called after each iteration with that iteration's :class:`Row` (leaves ``[S]``). ``cell``:
+    a ``(start, step)`` pair from :func:`make_cell` with the same arguments, to reuse its
+    compilation across methods that differ only in their fractions (DAgger, Batch, Abbeel).
     """
     fractions = np.asarray(fractions, dtype=np.float64)
     iterations = int(fractions.shape[0])
@@ -277,17 +280,12 @@ def run_learning(
     if ((fractions < 0) | (fractions > 1)).any():
         raise ValueError(f"policy fractions must lie in [0, 1], got {fractions.tolist()}")
     keys = seed_keys(seeds)
-    start, step = make_cell(
-        plant,
-        agent,
-        nu,
-        samples=samples,
-        iterations=iterations,
-        n_test=n_test,
-        mode=mode,
-        gamma=gamma,
-        test_policy=test_policy,
-    )
+    if cell is None:
+        cell = make_cell(
+            plant, agent, nu, samples=samples, iterations=iterations, n_test=n_test, mode=mode,
+            gamma=gamma, test_policy=test_policy,
+        )  # fmt: skip
+    start, step = cell
     noise = test_noise(plant, keys, n_test, test_policy)
     carry, row = start(keys, noise)
     rows = [row]

@@ -15,7 +15,7 @@ import numpy as np
 
 from loopid.algorithms import methods as M
 from loopid.algorithms.expert import expert_gains
-from loopid.algorithms.loop import Row, Trace, run_fixed_policy, run_learning
+from loopid.algorithms.loop import Agent, Row, Trace, make_cell, run_fixed_policy, run_learning
 from loopid.algorithms.model_based import linear_agent
 from loopid.algorithms.plant import Plant, helicopter_plant
 from loopid.algorithms.policy_gradient import run_policy_gradient
@@ -93,46 +93,47 @@ def run(
             n_test=s.test_trajectories,
             progress=progress,
         )
-    agent = linear_agent(
-        st.nominal,
-        ftrl_least_squares(s.ftrl_lambda),
-        st.plant.task.Q,
-        st.plant.task.R,
-        st.plant.horizon,
-    )
+    agent = _agent(s, st)
     if method == "pg":
         return run_policy_gradient(
-            st.plant,
-            agent,
-            seeds,
-            iterations=s.iterations,
-            samples=s.samples,
-            n_test=s.test_trajectories,
-            horizon=s.pg_horizon,
-            sigma=s.pg_sigma,
-            step=s.pg_step,
-            nu_state_var=s.nu_state_var,
-            progress=progress,
-        )
-    nu = make_nu(
-        M.nu_kind(method),
-        st.plant,
-        st.K_expert,
-        state_var=s.nu_state_var,
-        action_var=s.nu_action_var,
-        expert_action_var=s.expert_action_var,
-    )
+            st.plant, agent, seeds, iterations=s.iterations, samples=s.samples,
+            n_test=s.test_trajectories, horizon=s.pg_horizon, sigma=s.pg_sigma, step=s.pg_step,
+            nu_state_var=s.nu_state_var, progress=progress,
+        )  # fmt: skip
+    kind = M.nu_kind(method)
+    nu, cell = _cell(s, st, agent, kind)
     fractions = M.policy_fractions(method, s.iterations, dagger_fraction=s.dagger_fraction)
     return run_learning(
-        st.plant,
-        agent,
-        nu,
-        fractions,
-        seeds,
-        samples=s.samples,
-        n_test=s.test_trajectories,
-        mode=s.sampling,
-        gamma=s.gamma,
-        test_policy=s.test_policy,
-        progress=progress,
-    )
+        st.plant, agent, nu, fractions, seeds, samples=s.samples, n_test=s.test_trajectories,
+        mode=s.sampling, gamma=s.gamma, test_policy=s.test_policy, progress=progress, cell=cell,
+    )  # fmt: skip
+
+
+_AGENTS: dict = {}
+_CELLS: dict = {}
+
+
+def _agent(s: Scenario, st: Setup) -> Agent:
+    key = (id(st), s.ftrl_lambda)
+    if key not in _AGENTS:
+        learner = ftrl_least_squares(s.ftrl_lambda)
+        task = st.plant.task
+        _AGENTS[key] = linear_agent(st.nominal, learner, task.Q, task.R, st.plant.horizon)
+    return _AGENTS[key]
+
+
+def _cell(s: Scenario, st: Setup, agent: Agent, kind: str):
+    """The ν sampler and the compiled cell of ``kind``, shared by DAgger, Batch and Abbeel."""
+    key = (id(st), id(agent), kind, s.nu_state_var, s.nu_action_var, s.expert_action_var)
+    key += (s.samples, s.iterations, s.test_trajectories, s.sampling, s.gamma, s.test_policy)
+    if key not in _CELLS:
+        nu = make_nu(
+            kind, st.plant, st.K_expert, state_var=s.nu_state_var, action_var=s.nu_action_var,
+            expert_action_var=s.expert_action_var,
+        )  # fmt: skip
+        cell = make_cell(
+            st.plant, agent, nu, samples=s.samples, iterations=s.iterations,
+            n_test=s.test_trajectories, mode=s.sampling, gamma=s.gamma, test_policy=s.test_policy,
+        )  # fmt: skip
+        _CELLS[key] = (nu, cell)
+    return _CELLS[key]
