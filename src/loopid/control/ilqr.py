@@ -217,7 +217,7 @@ def _ilqr(
     )
     s = jax.lax.while_loop(cond, body, init)
     # entries after the stop repeat the final cost
-    idx = jnp.arange(max_iter + 1)
+    idx = jnp.arange(max_iter + 1, dtype=jnp.int32)
     history = jnp.where(idx <= s.it, s.history, s.J)
     final, _ = _backward_pass(quadratize(dynamics, cost, s.X, s.U), 0.0)
     return ILQRSolution(s.X, s.U, final.K, final.k, s.J, s.it, s.converged, history)
