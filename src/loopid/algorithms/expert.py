@@ -13,6 +13,7 @@ the loop; the expert is also the policy behind ν_e and ν_en.
 
 import jax
 import jax.numpy as jnp
+import numpy as np
 
 from loopid.control.lqr import dlqr_affine
 from loopid.systems import helicopter
@@ -29,24 +30,46 @@ def hover_expert_gain(task: Task) -> jax.Array:
     return sol.K
 
 
+def funnel_initial_actions(task: Task) -> np.ndarray:
+    """iLQR's starting actions ``[T, 4]`` for the funnel (actions are control *changes*).
+
+    A step to the hover trim at t = 0, then the rudder change that holds the circle's yaw rate
+    ω = 2π/5 rad/s from the first circle step and its reversal after the last (the attitude cost
+    is periodic in 4π of yaw, so a start without yaw ends in a local minimum that never turns
+    nose-in). Without pads the circle starts at t = 0.
+    """
+    T = task.target.shape[0] - 1
+    omega = 2 * np.pi / (helicopter.FUNNEL_STEPS_PER_CIRCLE * helicopter.DT)
+    d_rudder = -helicopter.RATE_DAMPING[2] * omega / helicopter.CONTROL_GAIN[2]
+    U0 = np.zeros((T, helicopter.N_ACTION))
+    U0[0] = np.asarray(helicopter.hover_trim().u)
+    if T + 1 > helicopter.FUNNEL_STEPS_PER_CIRCLE * helicopter.FUNNEL_CIRCLES:  # with pads
+        U0[helicopter.FUNNEL_PAD, 2] += d_rudder
+        U0[T + 1 - helicopter.FUNNEL_PAD, 2] -= d_rudder
+    else:
+        U0[0, 2] += d_rudder
+    return U0
+
+
 def funnel_expert_gains(task: Task, *, max_iter: int = 100) -> jax.Array:
     """iLQR on the true noise-free simulator along the target, as affine error-coordinate gains."""
     from loopid.control.ilqr import ilqr
 
     target = jnp.asarray(task.target, jnp.float64)
-    T = target.shape[0] - 1
-    m = helicopter.N_ACTION
     zero_noise = jnp.zeros(helicopter.N_NOISE, jnp.float64)
     Q, R = jnp.asarray(task.Q), jnp.asarray(task.R)
 
     def dynamics(x, u, t):
         return helicopter.step(x, u, zero_noise)
 
-    def cost(x, u, t):
+    def cost(x, u, t):  # iLQR calls it with u = 0 at t = T
         dx = helicopter.to_error(x, target[t])
-        return dx @ Q @ dx + jnp.where(t < T, u @ R @ u, 0.0)
+        return dx @ Q @ dx + u @ R @ u
 
-    sol = ilqr(dynamics, cost, jnp.asarray(task.x0), jnp.zeros((T, m)), max_iter=max_iter)
+    U0 = jnp.asarray(funnel_initial_actions(task))
+    sol = ilqr(dynamics, cost, jnp.asarray(task.x0), U0, max_iter=max_iter)
+    if not bool(sol.converged):
+        raise RuntimeError(f"the funnel expert's iLQR did not converge in {max_iter} iterations")
     # u_t = Ū_t − K_t (x_t − X̄_t) in raw coordinates; x_t − X̄_t ≈ J_t (Δx_t − ΔX̄_t) with
     # J_t = ∂ from_error(Δx, x*_t) / ∂Δx at ΔX̄_t.
     dX = jax.vmap(helicopter.to_error)(sol.X[:-1], target[:-1])
