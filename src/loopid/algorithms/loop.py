@@ -114,7 +114,7 @@ class _Carry(NamedTuple):
 def _masked_mean(values: jax.Array, mask: jax.Array) -> jax.Array:
     count = jnp.sum(mask)
     total = jnp.sum(jnp.where(mask, values, 0.0))
-    return jnp.where(count > 0, total / jnp.maximum(count, 1), 0.0)
+    return jnp.where(count > 0, total / jnp.maximum(count, 1).astype(total.dtype), 0.0)
 
 
 def seed_keys(seeds) -> jax.Array:
@@ -237,7 +237,7 @@ def make_cell(
             jnp.sum(div),
             loss_nu,
             loss_pol,
-            loss_sum / (n - 1),
+            loss_sum / (n - 1).astype(loss_sum.dtype),
             jnp.sum(take & batch.mask),
             jnp.sum(batch.mask),
             info.converged,
