@@ -76,8 +76,37 @@ class LQRSolution(NamedTuple):
     iterations: Array
 
 
+def _small_cho_solve(S: Array, rhs: Array) -> Array:
+    """Cholesky solve written out element by element (m ≤ 8): XLA fuses it into a few kernels,
+    where LAPACK's potrf would be one call per matrix (most of tvlqr's time for m = 4)."""
+    m = S.shape[0]
+    L = [[None] * m for _ in range(m)]
+    for j in range(m):
+        d = S[j, j] - sum((L[j][k] * L[j][k] for k in range(j)), start=0.0)
+        L[j][j] = jnp.sqrt(d)
+        for i in range(j + 1, m):
+            v = S[i, j] - sum((L[i][k] * L[j][k] for k in range(j)), start=0.0)
+            L[i][j] = v / L[j][j]
+    y = []
+    for i in range(m):
+        v = rhs[i] - sum((L[i][k] * y[k] for k in range(i)), start=0.0)
+        y.append(v / L[i][i])
+    x = [None] * m
+    for i in reversed(range(m)):
+        v = y[i] - sum((L[k][i] * x[k] for k in range(i + 1, m)), start=0.0)
+        x[i] = v / L[i][i]
+    return jnp.stack(x)
+
+
+def _cho_solve(S: Array, rhs: Array) -> Array:
+    if S.shape[0] <= 8:
+        return _small_cho_solve(S, rhs)
+    L = jnp.linalg.cholesky(S)
+    return jax.scipy.linalg.cho_solve((L, True), rhs)
+
+
 def psd_solve(S: Array, rhs: Array) -> tuple[Array, Array]:
-    """Solve S X = rhs for symmetric PSD ``S [m, m]``; never returns NaN.
+    """Solve S X = rhs for symmetric PSD ``S [m, m]``, ``rhs [m, k]``; never returns NaN.
 
     Cholesky first; if that fails (S singular or indefinite by round-off) retry with
     S + δI, δ = 1e-12·(tr S / m) + 1e-300; if that fails too return zeros. Returns
@@ -85,15 +114,11 @@ def psd_solve(S: Array, rhs: Array) -> tuple[Array, Array]:
     """
     S = 0.5 * (S + S.T)
     m = S.shape[-1]
-
-    def chol_solve(M):
-        L = jnp.linalg.cholesky(M)
-        X = jax.scipy.linalg.cho_solve((L, True), rhs)
-        return X, jnp.all(jnp.isfinite(X))
-
-    X0, ok0 = chol_solve(S)
+    X0 = _cho_solve(S, rhs)
+    ok0 = jnp.all(jnp.isfinite(X0))
     delta = 1e-12 * jnp.abs(jnp.trace(S)) / m + 1e-300
-    X1, ok1 = chol_solve(S + delta * jnp.eye(m, dtype=S.dtype))
+    X1 = _cho_solve(S + delta * jnp.eye(m, dtype=S.dtype), rhs)
+    ok1 = jnp.all(jnp.isfinite(X1))
     X = jnp.where(ok0, X0, jnp.where(ok1, X1, jnp.zeros_like(rhs)))
     return X, ok0
 

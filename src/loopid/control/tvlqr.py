@@ -63,8 +63,12 @@ class _BackwardAux(NamedTuple):
     ok: Array  # every H_uu (+ μI) was positive definite
 
 
-def _backward(A, B, c, Q, q, R, r, M, Q_T, q_T, mu):
-    """The recursion of the module docstring; all per-step arrays carry the time axis."""
+def _backward(A, B, c, Q, q, R, r, M, Q_T, q_T, mu, *, regularized=True):
+    """The recursion of the module docstring; all per-step arrays carry the time axis.
+
+    ``regularized=False`` (μ = 0, plain tvlqr) uses the shorter, equivalent value update
+    P_t = H_xx - H_uxᵀK, p_t = h_x - H_uxᵀk.
+    """
     m = B.shape[-1]
     eye_m = jnp.eye(m, dtype=A.dtype)
 
@@ -82,10 +86,14 @@ def _backward(A, B, c, Q, q, R, r, M, Q_T, q_T, mu):
         Huu_reg = Huu + mu * eye_m
         sol, ok = psd_solve(Huu_reg, jnp.concatenate([Hux, hu[:, None]], axis=1))
         K, k = sol[:, :-1], sol[:, -1]
-        KtHuu = K.T @ Huu
-        P_new = Hxx - Hux.T @ K - K.T @ Hux + KtHuu @ K
+        if regularized:
+            KtHuu = K.T @ Huu
+            P_new = Hxx - Hux.T @ K - K.T @ Hux + KtHuu @ K
+            p_new = hx - Hux.T @ k - K.T @ hu + KtHuu @ k
+        else:
+            P_new = Hxx - Hux.T @ K
+            p_new = hx - Hux.T @ k
         P_new = 0.5 * (P_new + P_new.T)
-        p_new = hx - Hux.T @ k - K.T @ hu + KtHuu @ k
         out = (K, k, P_new, p_new, hu @ k, k @ Huu @ k, ok)
         return (P_new, p_new), out
 
@@ -101,7 +109,7 @@ def _backward(A, B, c, Q, q, R, r, M, Q_T, q_T, mu):
 @jax.jit
 def _tvlqr(A, B, c, Q, q, R, r, M, Q_T, q_T) -> TVLQRSolution:
     """Jitted core: every per-step argument already has the time axis; no checks."""
-    sol, _ = _backward(A, B, c, Q, q, R, r, M, Q_T, q_T, 0.0)
+    sol, _ = _backward(A, B, c, Q, q, R, r, M, Q_T, q_T, 0.0, regularized=False)
     return sol
 
 
