@@ -177,7 +177,10 @@ def make_cell(
     gamma: float = 0.99,
     test_policy: str = "last",
 ):
-    """Build ``(start, step)``, jitted and vmapped over seeds, for one learning method.
+    """Build ``(start, step)``, jitted, over all seeds at once, for one learning method.
+
+    Collection and the learner's update are vmapped over seeds; the solve and the test run seed
+    by seed inside the same compiled call (see ``seeds_in_turn``).
 
     ``start(keys [S], noise) -> (carry, Row)`` solves and tests the initial model (iteration 1);
     ``step(carry, keys, noise, n, p) -> (carry, Row)`` runs iteration ``n`` with policy fraction
@@ -187,10 +190,20 @@ def make_cell(
         raise ValueError(f"test_policy must be one of {TEST_POLICIES}, got {test_policy!r}")
     hist_len = iterations if test_policy == "mixture" else 1
 
-    def start(key, noise):
+    def seeds_in_turn(f, *args):
+        """``f`` on each seed in turn (``lax.map``): a solver's ``cond`` then skips the branch it
+        does not take, and each seed's test batch stays cache-sized."""
+        return jax.lax.map(lambda a: f(*a), args)
+
+    def solve_and_test(carry: _Carry, key, noise, n):
+        K, info = agent.policy(carry.learner)
+        costs, div, carry = _evaluate(plant, carry, K, key, noise, n, test_policy)
+        return carry, (jnp.mean(costs), jnp.median(costs), jnp.sum(div), info)
+
+    def first(key):
         state = agent.init()
-        K, info = agent.policy(state)
-        carry = _Carry(
+        K, _ = agent.policy(state)
+        return _Carry(
             learner=state,
             K=K,
             best_K=K,
@@ -198,23 +211,20 @@ def make_cell(
             history=jnp.zeros((hist_len, *K.shape), K.dtype),
             loss_sum=jnp.float64(0.0),
         )
-        costs, div, carry = _evaluate(plant, carry, K, key, noise, 1, test_policy)
-        zero = jnp.float64(0.0)
-        row = Row(
-            jnp.mean(costs),
-            jnp.median(costs),
-            jnp.sum(div),
-            zero,
-            zero,
-            zero,
-            jnp.int32(0),
-            jnp.int32(0),
-            info.converged,
-            info.spectral_radius,
+
+    @jax.jit
+    def start(keys, noise):
+        carry = jax.vmap(first)(keys)
+        one = jnp.int32(1)
+        carry, (mean, median, div, info) = seeds_in_turn(
+            lambda c, k, w: solve_and_test(c, k, w, one), carry, keys, noise
         )
+        zero = jnp.zeros_like(mean)
+        count = jnp.zeros(mean.shape, jnp.int32)
+        row = Row(mean, median, div, zero, zero, zero, count, count, *info)
         return carry, row
 
-    def step(carry: _Carry, key, noise, n, p):
+    def learn(carry: _Carry, key, n, p):
         k_pol, k_nu, k_mix = jax.random.split(
             jax.random.fold_in(jax.random.fold_in(key, _TRAIN), n), 3
         )
@@ -226,28 +236,20 @@ def make_cell(
         loss_nu = _masked_mean(agent.loss(carry.learner, from_nu), from_nu.mask)
         loss_pol = _masked_mean(agent.loss(carry.learner, from_pol), from_pol.mask)
         loss_sum = carry.loss_sum + _masked_mean(agent.loss(carry.learner, batch), batch.mask)
+        carry = carry._replace(learner=agent.update(carry.learner, batch), loss_sum=loss_sum)
+        online = loss_sum / (n - 1).astype(loss_sum.dtype)
+        counts = (jnp.sum(take & batch.mask), jnp.sum(batch.mask))
+        return carry, (loss_nu, loss_pol, online, *counts)
 
-        state = agent.update(carry.learner, batch)
-        K, info = agent.policy(state)
-        carry = carry._replace(learner=state, loss_sum=loss_sum)
-        costs, div, carry = _evaluate(plant, carry, K, key, noise, n, test_policy)
-        row = Row(
-            jnp.mean(costs),
-            jnp.median(costs),
-            jnp.sum(div),
-            loss_nu,
-            loss_pol,
-            loss_sum / (n - 1).astype(loss_sum.dtype),
-            jnp.sum(take & batch.mask),
-            jnp.sum(batch.mask),
-            info.converged,
-            info.spectral_radius,
+    @jax.jit
+    def step(carry: _Carry, keys, noise, n, p):
+        carry, stats = jax.vmap(learn, in_axes=(0, 0, None, None))(carry, keys, n, p)
+        carry, (mean, median, div, info) = seeds_in_turn(
+            lambda c, k, w: solve_and_test(c, k, w, n), carry, keys, noise
         )
-        return carry, row
+        return carry, Row(mean, median, div, *stats, *info)
 
-    start_v = jax.jit(jax.vmap(start))
-    step_v = jax.jit(jax.vmap(step, in_axes=(0, 0, 0, None, None)))
-    return start_v, step_v
+    return start, step
 
 
 def run_learning(

@@ -82,8 +82,9 @@ def linear_agent(
             K = jnp.where(ok, K, 0.0)
             return K, SolverInfo(ok, jnp.float64(0.0))
         sol = _dlqr_affine(A, B, Q, R)
-        K_fh = finite_horizon_gains(A, B, Q, R, horizon)[0]
-        K = jnp.where(sol.converged, sol.K, K_fh)
+        K = jax.lax.cond(  # the fallback is solved only where dlqr failed (both under vmap)
+            sol.converged, lambda: sol.K, lambda: finite_horizon_gains(A, B, Q, R, horizon)[0]
+        )
         K = jnp.where(jnp.all(jnp.isfinite(K)), K, 0.0)
         return jnp.broadcast_to(K, (horizon, m, n)), SolverInfo(sol.converged, sol.spectral_radius)
 
