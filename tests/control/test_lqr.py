@@ -133,6 +133,9 @@ def test_paper_initial_hover_model_tiny_R():
     # the controllable part is still solved: du_prev is driven to zero (x_du' = u), u_prev free
     K = np.asarray(dlqr(A, B, Q, R).K)
     np.testing.assert_allclose(K[:, 4:8], np.eye(4), atol=1e-6)
+    # SPEC §4.4 fallback: the first gain of the finite-horizon LQR over the task horizon
+    fallback = tvlqr(A, B, Q, R, Q_T=Q, T=400)
+    assert np.all(np.isfinite(fallback.K)) and np.all(np.isfinite(fallback.P))
 
 
 def test_true_hover_linearisation_matches_spec_and_scipy():
@@ -269,3 +272,20 @@ def test_input_checks_name_the_argument():
         dlqr(np.full((3, 3), np.nan), B, Q, R)
     with pytest.raises(TypeError, match=r"R is required"):
         dlqr(A, B, Q, None)
+
+
+@pytest.mark.slow
+def test_dlqr_affine_and_tvlqr_inside_scan():
+    # the loop's use: solvers called on traced models inside lax.scan (value checks skipped)
+    A, B, Q, R = hover_problem()
+
+    def body(carry, scale):
+        Ai = jnp.asarray(A).at[:-1, :-1].multiply(scale)
+        sol = dlqr_affine(Ai, B, Q, R)
+        fallback = tvlqr(Ai, B, Q, R, Q_T=Q, T=50)
+        return carry, (sol.K, sol.converged, fallback.K[0])
+
+    _, (K, conv, K0) = jax.lax.scan(body, 0.0, jnp.array([1.0, 0.999]))
+    K_ref, _ = scipy_lqr(A[:-1, :-1], B[:-1], Q[:-1, :-1], R)
+    assert rel(K[0][:, :-1], K_ref) < 1e-8
+    assert bool(jnp.all(conv)) and np.all(np.isfinite(K0))
