@@ -77,7 +77,8 @@ class Row(NamedTuple):
       each update (the no-regret learner's average online loss);
     - ``policy_samples``: how many of the m trained transitions came from the policy;
     - ``valid_samples``: how many were usable (not cut by the safe region);
-    - ``solver_converged``, ``spectral_radius``: the optimal-control solve's status.
+    - ``solver_converged``, ``spectral_radius``: the optimal-control solve's status;
+    - ``extra``: ``{name: [S] array}`` from a :class:`Diagnostics` hook (empty without one).
     """
 
     test_cost: jax.Array
@@ -90,6 +91,18 @@ class Row(NamedTuple):
     valid_samples: jax.Array
     solver_converged: jax.Array
     spectral_radius: jax.Array
+    extra: dict
+
+
+class Diagnostics(NamedTuple):
+    """An optional per-iteration hook for quantities only a particular system can compute (the
+    exact finite-MDP bounds, say). ``init() -> state``; ``update(state, learner_state, K, p, n)
+    -> (state, {name: scalar})`` runs after each solve (iteration n, policy ``K``, policy
+    fraction ``p`` of the batch that was just learned from; ``p = 0`` at n = 1). The names become
+    extra result columns."""
+
+    init: Callable[[], Any]
+    update: Callable[..., tuple[Any, dict]]
 
 
 class Trace(NamedTuple):
@@ -109,6 +122,7 @@ class _Carry(NamedTuple):
     best_cost: jax.Array
     history: jax.Array
     loss_sum: jax.Array
+    diag: Any
 
 
 def _masked_mean(values: jax.Array, mask: jax.Array) -> jax.Array:
@@ -176,6 +190,7 @@ def make_cell(
     mode: str = "trajectory",
     gamma: float = 0.99,
     test_policy: str = "last",
+    diagnostics: Diagnostics | None = None,
 ):
     """Build ``(start, step)``, jitted, over all seeds at once, for one learning method.
 
@@ -195,10 +210,14 @@ def make_cell(
         does not take, and each seed's test batch stays cache-sized."""
         return jax.lax.map(lambda a: f(*a), args)
 
-    def solve_and_test(carry: _Carry, key, noise, n):
+    def solve_and_test(carry: _Carry, key, noise, n, p):
         K, info = agent.policy(carry.learner)
+        extra = {}
+        if diagnostics is not None:
+            diag, extra = diagnostics.update(carry.diag, carry.learner, K, p, n)
+            carry = carry._replace(diag=diag)
         costs, div, carry = _evaluate(plant, carry, K, key, noise, n, test_policy)
-        return carry, (jnp.mean(costs), jnp.median(costs), jnp.sum(div), info)
+        return carry, (jnp.mean(costs), jnp.median(costs), jnp.sum(div), info, extra)
 
     def first(key):
         state = agent.init()
@@ -210,18 +229,19 @@ def make_cell(
             best_cost=jnp.float64(jnp.inf),
             history=jnp.zeros((hist_len, *K.shape), K.dtype),
             loss_sum=jnp.float64(0.0),
+            diag=diagnostics.init() if diagnostics is not None else (),
         )
 
     @jax.jit
     def start(keys, noise):
         carry = jax.vmap(first)(keys)
-        one = jnp.int32(1)
-        carry, (mean, median, div, info) = seeds_in_turn(
-            lambda c, k, w: solve_and_test(c, k, w, one), carry, keys, noise
+        one, p0 = jnp.int32(1), jnp.float64(0.0)
+        carry, (mean, median, div, info, extra) = seeds_in_turn(
+            lambda c, k, w: solve_and_test(c, k, w, one, p0), carry, keys, noise
         )
         zero = jnp.zeros_like(mean)
         count = jnp.zeros(mean.shape, jnp.int32)
-        row = Row(mean, median, div, zero, zero, zero, count, count, *info)
+        row = Row(mean, median, div, zero, zero, zero, count, count, *info, extra)
         return carry, row
 
     def learn(carry: _Carry, key, n, p):
@@ -244,10 +264,10 @@ def make_cell(
     @jax.jit
     def step(carry: _Carry, keys, noise, n, p):
         carry, stats = jax.vmap(learn, in_axes=(0, 0, None, None))(carry, keys, n, p)
-        carry, (mean, median, div, info) = seeds_in_turn(
-            lambda c, k, w: solve_and_test(c, k, w, n), carry, keys, noise
+        carry, (mean, median, div, info, extra) = seeds_in_turn(
+            lambda c, k, w: solve_and_test(c, k, w, n, p), carry, keys, noise
         )
-        return carry, Row(mean, median, div, *stats, *info)
+        return carry, Row(mean, median, div, *stats, *info, extra)
 
     return start, step
 
@@ -326,7 +346,7 @@ def run_fixed_policy(
         zero = jnp.float64(0.0)
         return Row(
             jnp.mean(costs), jnp.median(costs), jnp.sum(div), zero, zero, zero,
-            jnp.int32(0), jnp.int32(0), jnp.bool_(True), jnp.float64(0.0),
+            jnp.int32(0), jnp.int32(0), jnp.bool_(True), jnp.float64(0.0), {},
         )  # fmt: skip
 
     row = test(noise.test)

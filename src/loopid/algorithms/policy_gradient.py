@@ -88,6 +88,7 @@ def run_policy_gradient(
             jnp.int32(2 * pairs * H),
             info.converged,
             info.spectral_radius,
+            {},
         )
 
     def pg_step(theta, key, noise, it):

@@ -5,7 +5,9 @@ transitions collected before that iteration's policy was solved), ``test_cost`` 
 total cost over the test trajectories), ``test_cost_median``, ``diverged`` (test trajectories
 that hit the cap or a non-finite state), and the diagnostics of :class:`loopid.algorithms.loop.Row`
 (``loss_nu``, ``loss_policy``, ``online_loss``, ``policy_samples``, ``valid_samples``,
-``solver_converged``, ``spectral_radius``). Files are written atomically (temporary name, then
+``solver_converged``, ``spectral_radius``), then any system-specific diagnostics
+(:class:`loopid.algorithms.loop.Diagnostics`, float64; +inf allowed, e.g. c_ν^π where ν misses
+mass). Files are written atomically (temporary name, then
 rename), so a killed run never leaves a half-written table.
 """
 
@@ -49,12 +51,18 @@ def trace_table(scenario: str, method: str, trace: Trace) -> pa.Table:
         "iteration": np.tile(trace.iteration, S),
         "samples": np.tile(trace.samples, S),
     }
-    for name in Row._fields:
+    for name in Row._fields[:-1]:
         cols[name] = np.asarray(getattr(trace.rows, name)).reshape(S * N)
-    for name, v in cols.items():
-        if v.dtype.kind == "f" and not np.isfinite(v).all():
-            raise ValueError(f"column {name!r} of {scenario}/{method} holds non-finite values")
-    return pa.table({f.name: pa.array(cols[f.name], type=f.type) for f in SCHEMA}, schema=SCHEMA)
+    extra = {name: np.asarray(v, np.float64).reshape(S * N) for name, v in trace.rows.extra.items()}
+    for name, v in {**cols, **extra}.items():
+        if v.dtype.kind == "f" and np.isnan(v).any():
+            raise ValueError(f"column {name!r} of {scenario}/{method} holds NaN")
+    schema = SCHEMA
+    for name in extra:  # system-specific diagnostics (Row.extra) after the fixed columns
+        schema = schema.append(pa.field(name, pa.float64()))
+    data = {f.name: pa.array(cols[f.name], type=f.type) for f in SCHEMA}
+    data.update({name: pa.array(v, type=pa.float64()) for name, v in extra.items()})
+    return pa.table(data, schema=schema)
 
 
 def write_atomic(table: pa.Table, path: Path) -> None:
@@ -66,11 +74,18 @@ def write_atomic(table: pa.Table, path: Path) -> None:
 
 
 def read_table(path: Path) -> pa.Table:
-    """Read a results table (one file, or a folder of cell files) with the loopid schema."""
+    """Read a results table (one file, or a folder of cell files): the loopid columns first,
+    then any extra diagnostics columns (null where a cell does not have them)."""
     path = Path(path)
     if path.is_dir():
         files = sorted(p for p in path.glob("*.parquet") if not p.name.startswith("."))
-        if not files:
-            return SCHEMA.empty_table()
-        return pa.concat_tables([pq.read_table(f, schema=SCHEMA) for f in files])
-    return pq.read_table(path, schema=SCHEMA)
+    else:
+        files = [path]
+    if not files:
+        return SCHEMA.empty_table()
+    tables = [pq.read_table(f) for f in files]
+    for f, t in zip(files, tables, strict=True):
+        missing = [name for name in SCHEMA.names if name not in t.column_names]
+        if missing:
+            raise ValueError(f"{f} is not a loopid results table: no column(s) {missing}")
+    return pa.concat_tables(tables, promote_options="default")
