@@ -5,6 +5,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
+from loopid.algorithms.expert import funnel_initial_actions
 from loopid.control import ilqr, linear_rollout, quadratize, tracking_rollout, tvlqr
 from loopid.systems import helicopter, tasks
 
@@ -131,7 +132,6 @@ def funnel_expert_problem():
     """The funnel task (SPEC §2 "Linearised expert"): raw-state helicopter, noise-free."""
     task = tasks.make_task("funnel")
     Q, R, target = task.Q, task.R, task.target
-    T = target.shape[0] - 1  # 599 actions
 
     def dynamics(x, u, t):
         return helicopter.step(x, u, jnp.zeros(6))
@@ -140,15 +140,8 @@ def funnel_expert_problem():
         dx = helicopter.to_error(x, target[t])
         return dx @ Q @ dx + u @ R @ u
 
-    # initial actions: step to the hover trim, then the rudder change that holds the circle's
-    # yaw rate ω from the first circle step to the last (the attitude cost is periodic in 4π of
-    # yaw, so an initial guess without yaw ends in a local minimum that never turns nose-in)
-    omega = 2 * np.pi / (helicopter.FUNNEL_STEPS_PER_CIRCLE * helicopter.DT)
-    d_rudder = -helicopter.RATE_DAMPING[2] * omega / helicopter.CONTROL_GAIN[2]
-    U0 = np.zeros((T, 4))
-    U0[0] = np.asarray(helicopter.hover_trim().u)
-    U0[helicopter.FUNNEL_PAD, 2] += d_rudder
-    U0[T + 1 - helicopter.FUNNEL_PAD, 2] -= d_rudder
+    # the library's initial guess (trim, then the circle's yaw rate): see its docstring
+    U0 = funnel_initial_actions(task)
     return task, dynamics, cost, U0
 
 
