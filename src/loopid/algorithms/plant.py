@@ -64,12 +64,15 @@ def clean(tr: Transitions) -> Transitions:
 
 
 def select(take_first: jax.Array, a: Transitions, b: Transitions) -> Transitions:
-    """Row-wise choice: row i of ``a`` where ``take_first[i]``, else row i of ``b``."""
+    """Row-wise choice: row i of ``a`` where ``take_first[i]``, else row i of ``b``.
+
+    Any NamedTuple of arrays with a leading batch axis works (the result has ``a``'s type), so
+    other systems' transition records (e.g. finite-MDP ``(s, a, s_next, t, mask)``) share it."""
 
     def pick(u, v):
         return jnp.where(take_first.reshape(take_first.shape + (1,) * (u.ndim - 1)), u, v)
 
-    return Transitions(*(pick(u, v) for u, v in zip(a, b, strict=True)))
+    return type(a)(*(pick(u, v) for u, v in zip(a, b, strict=True)))
 
 
 def draw(tr: Transitions, key: jax.Array, n: int) -> Transitions:
