@@ -1,0 +1,290 @@
+"""Algorithm 1 for systems that are not JAX functions (a Gymnasium env, :mod:`loopid.systems.gym`).
+
+Same semantics as :func:`loopid.algorithms.loop.run_learning`: iteration 1 solves the initial
+model; iteration n = 2..N collects, for every seed, ``ceil(m / horizon)`` training slots of the
+policy ``π_{n−1}`` and as many of the exploration policy ν (both always, fixed shapes), draws m
+transitions uniformly without replacement among the valid steps of each (:func:`draw`), takes slot
+i of the batch from the policy draws with probability ``p_n`` and from ν otherwise
+(:func:`select`), records the model's loss on each set before the update, gives the batch to the
+learner (each sample seen once), solves for ``π_n`` and tests it. The rows are the same
+:class:`~loopid.algorithms.loop.Row` diagnostics.
+
+Only the plant differs: collection and testing are Python driving the vector env; the learner's
+update, its losses and the solve are one jitted function vmapped over seeds (compiled once per
+run and shared by every method through ``cell``).
+
+Randomness: slot seeds are ``SeedSequence([seed, n, stream]).generate_state(k, uint32)`` with
+streams 1 (policy), 2 (ν) and 3 (test, with n = 0: the same test episodes at every iteration and
+for every method at that seed, i.e. common random numbers); each slot seeds its env resets and
+action noise (:mod:`loopid.systems.gym`). The draws and the policy/ν choice use JAX keys
+``fold_in(fold_in(key(seed), 1), n)`` as the JAX loop does.
+
+Test cost of one episode: ``Σ_t c(o_t, a_t)`` over the actions taken (plus ``termination_cost``
+if it ended by ``terminated``), capped at ``cost_cap``; an episode that reaches the cap or a
+non-finite value counts as diverged. ``c`` is a :class:`~loopid.systems.gym.QuadraticCost` (on
+the observed entries), ``"reward"`` (the env's own reward, negated: ``c_t = −r_t``) or any
+callable ``cost(obs, action) -> float`` on the raw observation. The tested policy is the last
+one.
+"""
+
+from collections.abc import Callable
+from typing import Any, NamedTuple
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from loopid.algorithms.loop import Agent, Row, Trace, seed_keys
+from loopid.algorithms.model_based import linear_agent
+from loopid.algorithms.plant import Transitions, draw, select
+from loopid.learners import ftrl_least_squares
+from loopid.models.linear_offset import LinearOffsetModel
+from loopid.systems.gym import GymSystem, QuadraticCost, Rollouts, Slot
+
+_TRAIN = 1
+_POLICY, _NU, _TEST = 1, 2, 3
+
+
+class Exploration(NamedTuple):
+    """ν for a system with a reset model only: rollouts of ``policy`` (an object with
+    ``act(obs [k, n_obs], t [k], index [k]) -> [k, m]``: a base policy, a gain, an open-loop
+    nominal) with Gaussian action noise of std ``action_std``."""
+
+    policy: Any
+    action_std: float = 0.0
+
+
+def nominal_model(system: GymSystem, A=None, B=None, *, time_varying: bool = False):
+    """The initial linear offset model in the system's coordinates ``Δx = [o − o*; 1]``.
+
+    ``A``: ``[n, n]`` or ``[n_obs, n_obs]`` (embedded with the constant kept at 1), default the
+    identity; ``B``: ``[n, m]`` or ``[n_obs, m]`` (zero row for the constant), default zeros.
+    ``time_varying``: the same pair at every one of the ``horizon`` steps, offsets learned per step.
+    """
+    n, n_obs, m = system.n, system.n_obs, system.m
+    if A is None:
+        A = np.eye(n)
+    A = np.asarray(A, dtype=np.float64)
+    if A.shape == (n_obs, n_obs):
+        A = np.block([[A, np.zeros((n_obs, 1))], [np.zeros((1, n_obs)), np.ones((1, 1))]])
+    if A.shape != (n, n) or not np.all(np.isfinite(A)):
+        raise ValueError(f"model A must be finite, {n_obs}x{n_obs} or {n}x{n}, got shape {A.shape}")
+    B = np.zeros((n, m)) if B is None else np.asarray(B, dtype=np.float64)
+    if B.shape == (n_obs, m):
+        B = np.concatenate([B, np.zeros((1, m))], axis=0)
+    if B.shape != (n, m) or not np.all(np.isfinite(B)):
+        raise ValueError(f"model B must be finite, {n_obs}x{m} or {n}x{m}, got shape {B.shape}")
+    if time_varying:
+        T = system.horizon
+        A, B = np.broadcast_to(A, (T, n, n)), np.broadcast_to(B, (T, n, m))
+    return LinearOffsetModel(jnp.asarray(A), jnp.asarray(B))
+
+
+def gym_agent(system: GymSystem, cost: QuadraticCost, model: LinearOffsetModel, *, lam=1e-3):
+    """The model-based agent: ``model`` + FTRL(λ) + LQR (time-varying LQR for a time-varying
+    model) on the cost's ``Q`` (zero on the constant coordinate) and ``R``."""
+    Q, R = cost.augmented()
+    if Q.shape[0] != system.n or R.shape[0] != system.m:
+        raise ValueError(
+            f"cost is for {Q.shape[0] - 1} observations and {R.shape[0]} actions, "
+            f"the system has {system.n_obs} and {system.m}"
+        )
+    return linear_agent(model, ftrl_least_squares(lam), Q, R, system.horizon)
+
+
+def slot_seeds(seed: int, n: int, stream: int, count: int) -> list[int]:
+    """``count`` slot seeds of one (seed, iteration, stream)."""
+    state = np.random.SeedSequence([int(seed), int(n), int(stream)]).generate_state(count)
+    return [int(s) for s in state]
+
+
+class HostCell(NamedTuple):
+    """The jitted, seed-vmapped pieces: ``start(S) -> (carry, K, info)`` and ``learn(carry, pol,
+    nu, keys, n, p) -> (carry, K, info, stats)``."""
+
+    start: Callable
+    learn: Callable
+
+
+class _Carry(NamedTuple):
+    learner: Any
+    loss_sum: jax.Array
+
+
+def _masked_mean(values, mask):
+    count = jnp.sum(mask)
+    total = jnp.sum(jnp.where(mask, values, 0.0))
+    return jnp.where(count > 0, total / jnp.maximum(count, 1).astype(total.dtype), 0.0)
+
+
+def make_host_cell(agent: Agent, *, samples: int, with_nu: bool = True) -> HostCell:
+    """Compile-once pieces of :func:`run_learning_host` (shared by methods differing in ``p_n``)."""
+
+    def first(_):
+        state = agent.init()
+        K, info = agent.policy(state)
+        return _Carry(state, jnp.float64(0.0)), K, info
+
+    @jax.jit
+    def start(dummy):
+        return jax.vmap(first)(dummy)
+
+    def one(carry: _Carry, pol: Transitions, nu: Transitions, key, n, p):
+        k_pol, k_nu, k_mix = jax.random.split(
+            jax.random.fold_in(jax.random.fold_in(key, _TRAIN), n), 3
+        )
+        from_pol = draw(pol, k_pol, samples)
+        from_nu = draw(nu, k_nu, samples) if with_nu else from_pol
+        take = jax.random.bernoulli(k_mix, p, (samples,))
+        batch = select(take, from_pol, from_nu)
+        loss_nu = _masked_mean(agent.loss(carry.learner, from_nu), from_nu.mask)
+        loss_pol = _masked_mean(agent.loss(carry.learner, from_pol), from_pol.mask)
+        loss_sum = carry.loss_sum + _masked_mean(agent.loss(carry.learner, batch), batch.mask)
+        learner = agent.update(carry.learner, batch)
+        K, info = agent.policy(learner)
+        online = loss_sum / (n - 1).astype(loss_sum.dtype)
+        stats = (loss_nu, loss_pol, online, jnp.sum(take & batch.mask), jnp.sum(batch.mask))
+        return _Carry(learner, loss_sum), K, info, stats
+
+    learn = jax.jit(jax.vmap(one, in_axes=(0, 0, 0, 0, None, None)))
+    return HostCell(start, learn)
+
+
+def _transitions(r: Rollouts, S: int) -> Transitions:
+    """Slots ``[S·R, T]`` (seed-major) as JAX Transitions ``[S, R·T]``."""
+
+    def f(a, dtype):
+        return jnp.asarray(a.reshape(S, -1, *a.shape[2:]), dtype)
+
+    return Transitions(
+        f(r.x, jnp.float64), f(r.dx, jnp.float64), f(r.du, jnp.float64),
+        f(r.dx_next, jnp.float64), f(r.t, jnp.int32), f(r.mask, jnp.bool_),
+    )  # fmt: skip
+
+
+def episode_costs(system: GymSystem, r: Rollouts, cost, *, termination_cost=0.0, cost_cap=1e8):
+    """Capped total costs ``[R]`` and diverged flags ``[R]`` of test slots (module docstring).
+
+    ``cost``: a :class:`QuadraticCost` (on the observed entries, all rows at once), ``"reward"``
+    (``−r_t``) or ``cost(obs, action) -> float`` on the raw observation, row by row.
+    """
+    action = r.du + system.a_op
+    if isinstance(cost, QuadraticCost):
+        stage = np.where(r.mask, cost(system.observed(r.x), action), 0.0)
+    elif isinstance(cost, str):
+        if cost != "reward":
+            raise ValueError(f"cost must be a QuadraticCost, 'reward' or a callable, got {cost!r}")
+        stage = np.where(r.mask, -r.reward, 0.0)
+    else:
+        stage = np.zeros(r.mask.shape)
+        for i, j in zip(*np.nonzero(r.mask), strict=True):
+            stage[i, j] = float(cost(r.x[i, j], action[i, j]))
+    with np.errstate(over="ignore", invalid="ignore"):
+        total = stage.sum(axis=1) + termination_cost * r.terminated
+    diverged = ~r.finite | ~np.isfinite(total) | (total >= cost_cap)
+    return np.where(diverged, cost_cap, total), diverged
+
+
+def run_learning_host(
+    system: GymSystem,
+    agent: Agent,
+    nu: Exploration | None,
+    fractions,
+    seeds,
+    *,
+    samples: int,
+    n_test: int,
+    cost,
+    termination_cost: float = 0.0,
+    cost_cap: float = 1e8,
+    progress: Callable[[int, Row], None] | None = None,
+    cell: HostCell | None = None,
+) -> Trace:
+    """Run one learning method on a host system for ``len(fractions)`` iterations, every seed.
+
+    ``fractions[n−1]`` = ``p_n`` (``fractions[0]`` unused); ``cost(obs, action) -> float`` is the
+    test cost (:class:`~loopid.systems.gym.QuadraticCost` or any callable); ``progress(n, row)``
+    after each iteration; ``cell`` from :func:`make_host_cell` to reuse its compilation.
+    """
+    fractions = np.asarray(fractions, dtype=np.float64)
+    N = int(fractions.shape[0]) if fractions.ndim == 1 else 0
+    if N < 1:
+        raise ValueError(f"fractions must be a non-empty vector, got shape {fractions.shape}")
+    if ((fractions < 0) | (fractions > 1)).any():
+        raise ValueError(f"policy fractions must lie in [0, 1], got {fractions.tolist()}")
+    for name, v in (("samples", samples), ("n_test", n_test)):
+        if isinstance(v, bool) or not isinstance(v, int | np.integer) or v < 1:
+            raise ValueError(f"{name} must be an integer >= 1, got {v!r}")
+    keys = seed_keys(seeds)
+    seeds = np.asarray(seeds)
+    S = len(seeds)
+    if cell is None:
+        cell = make_host_cell(agent, samples=samples, with_nu=nu is not None)
+    runs = -(-samples // system.horizon)
+    test_slots = [
+        Slot(0, s, x, 0.0, False) for s in range(S) for x in slot_seeds(seeds[s], 0, _TEST, n_test)
+    ]
+
+    def test(K) -> tuple:
+        policies = [system.linear_policy(np.asarray(K))]
+        r = system.rollouts(policies, test_slots)
+        costs, div = episode_costs(
+            system, r, cost, termination_cost=termination_cost, cost_cap=cost_cap
+        )
+        costs, div = costs.reshape(S, n_test), div.reshape(S, n_test)
+        return costs.mean(1), np.median(costs, axis=1), div.sum(1)
+
+    carry, K, info = cell.start(jnp.zeros(S))
+    zero, count = np.zeros(S), np.zeros(S, np.int64)
+    rows = [_row(*test(K), zero, zero, zero, count, count, info)]
+    if progress:
+        progress(1, rows[0])
+    for n in range(2, N + 1):
+        policies = [system.linear_policy(np.asarray(K))]
+        slots = [
+            Slot(0, s, x, 0.0, True)
+            for s in range(S)
+            for x in slot_seeds(seeds[s], n, _POLICY, runs)
+        ]
+        if nu is not None:
+            policies.append(nu.policy)
+            slots += [
+                Slot(1, s, x, float(nu.action_std), True)
+                for s in range(S)
+                for x in slot_seeds(seeds[s], n, _NU, runs)
+            ]
+        r = system.rollouts(policies, slots)
+        half = S * runs
+        pol = _transitions(Rollouts(*(a[:half] for a in r)), S)
+        from_nu = _transitions(Rollouts(*(a[half:] for a in r)), S) if nu is not None else pol
+        carry, K, info, stats = cell.learn(
+            carry, pol, from_nu, keys, jnp.int32(n), jnp.float64(fractions[n - 1])
+        )
+        rows.append(_row(*test(K), *(np.asarray(a) for a in stats), info))
+        if progress:
+            progress(n, rows[-1])
+    return _trace(seeds, samples, rows)
+
+
+def _row(mean, median, div, loss_nu, loss_pol, online, pol_n, valid_n, info) -> Row:
+    fields = dict(
+        test_cost=np.asarray(mean, np.float64),
+        test_cost_median=np.asarray(median, np.float64),
+        diverged=np.asarray(div, np.int64),
+        loss_nu=np.asarray(loss_nu, np.float64),
+        loss_policy=np.asarray(loss_pol, np.float64),
+        online_loss=np.asarray(online, np.float64),
+        policy_samples=np.asarray(pol_n, np.int64),
+        valid_samples=np.asarray(valid_n, np.int64),
+        solver_converged=np.asarray(info.converged, bool),
+        spectral_radius=np.asarray(info.spectral_radius, np.float64),
+    )
+    if "extra" in Row._fields:
+        fields["extra"] = {}
+    return Row(**fields)
+
+
+def _trace(seeds, samples: int, rows: list[Row]) -> Trace:
+    stacked = jax.tree_util.tree_map(lambda *a: np.stack(a, axis=1), *rows)
+    iteration = np.arange(1, len(rows) + 1)
+    return Trace(np.asarray(seeds), iteration, (iteration - 1) * samples, stacked)
