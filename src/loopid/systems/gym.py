@@ -51,6 +51,7 @@ __all__ = [
     "Slot",
     "make_env_fn",
     "quadratic_cost",
+    "slot_streams",
 ]
 
 
@@ -227,6 +228,13 @@ class Rollouts(NamedTuple):
     finite: np.ndarray
 
 
+def slot_streams(slot: Slot, horizon: int, m: int) -> tuple[np.ndarray, np.random.Generator]:
+    """A slot's action noise ``ε [horizon, m]`` and the generator that then draws its episodes'
+    reset seeds (``integers(2**32)`` per reset), from ``default_rng(slot.seed)``."""
+    rng = np.random.default_rng(slot.seed)
+    return rng.standard_normal((horizon, m)) * slot.action_std, rng
+
+
 # ----------------------------------------------------------------------------- the system
 def make_env_fn(env, kwargs: dict | None = None) -> Callable[[], gymnasium.Env]:
     """A factory for one sub-environment: from an id (``gymnasium.make(id, **kwargs)``), a
@@ -396,14 +404,9 @@ class GymSystem:
         steps = np.zeros(R, np.int64)
         terminated = np.zeros(R, bool)
         finite = np.ones(R, bool)
-        rngs = [np.random.default_rng(s.seed) for s in slots]
-        eps = (
-            np.stack(
-                [g.standard_normal((T, m)) * s.action_std for g, s in zip(rngs, slots, strict=True)]
-            )
-            if R
-            else np.zeros((0, T, m))
-        )
+        streams = [slot_streams(s, T, m) for s in slots]
+        rngs = [g for _, g in streams]
+        eps = np.stack([e for e, _ in streams]) if R else np.zeros((0, T, m))
         pol_of = np.array([s.policy for s in slots], np.int64)
         idx_of = np.array([s.index for s in slots], np.int64)
         restart_of = np.array([s.restart for s in slots], bool)
