@@ -186,7 +186,7 @@ def _checked(what: str, f, *args, **kwargs):
 
 
 def build(cfg: dict):
-    """(system, cost, test cost, agent, ν) from a resolved configuration; checks sizes."""
+    """(system, cost, test cost, agent, ν, cell) from a resolved configuration; checks sizes."""
     e, c = cfg["env"], cfg["cost"]
     system = GymSystem(
         e["id"], target=c["target"], env_kwargs=e["kwargs"], observe=e["observe"],
@@ -228,8 +228,16 @@ def _parts(cfg: dict, system: GymSystem):
     model = _checked(
         "model", nominal_model, system, md["A"], md["B"], time_varying=md["time_varying"]
     )
-    agent = gym_agent(system, cost, model, lam=md["lambda"])
-    return cost, test_cost, agent, Exploration(policy, std)
+    arrays = tuple((a.shape, a.tobytes()) for a in cost)
+    key = (repr(md), arrays, system.horizon, cfg["run"]["samples"])
+    if key not in _CELLS:  # the compiled learner/solver, reused by later runs in this process
+        agent = gym_agent(system, cost, model, lam=md["lambda"])
+        _CELLS[key] = (agent, make_host_cell(agent, samples=cfg["run"]["samples"]))
+    agent, cell = _CELLS[key]
+    return cost, test_cost, agent, Exploration(policy, std), cell
+
+
+_CELLS: dict = {}
 
 
 def fractions(method: str, iterations: int, dagger_fraction: float = 0.5) -> np.ndarray:
@@ -249,13 +257,12 @@ def run_gym_config(path, out, *, quiet: bool = False, log: Callable[[str], None]
     configuration is refused. ``log(line)`` gets one line per method (unless ``quiet``).
     """
     cfg = load_config(path)
-    system, _, test_cost, agent, nu = build(cfg)
+    system, _, test_cost, agent, nu, cell = build(cfg)
     out = Path(out)
     rd = RunDir(out)
     rd.prepare(_written(cfg))
     r = cfg["run"]
     order = [(SCENARIO, m) for m in r["methods"]]
-    cell = make_host_cell(agent, samples=r["samples"])
     try:
         for method in r["methods"]:
             if rd.done(SCENARIO, method):
