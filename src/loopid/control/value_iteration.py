@@ -1,0 +1,208 @@
+r"""Exact dynamic programming on finite MDPs, batched over leading axes.
+
+Shapes: ``P [..., S, A, S]`` (``P[s, a, s'] = T_sa(s')``), ``C [..., S, A]``, ``gamma`` a
+scalar or ``[...]``; policies are probability tables ``pi [..., S, A]`` (a deterministic policy
+is one-hot; :func:`greedy` makes one). Costs are minimised.
+
+- :func:`evaluate`: ``V_π = (I − γ P_π)^{-1} C_π`` by a linear solve (exact up to rounding).
+- :func:`value_iteration`: ``V ← min_a [C + γ P V]`` in a ``lax.while_loop`` until the sup-norm
+  step ``δ`` satisfies ``γ δ / (1 − γ) ≤ tol`` (then ``‖V − V*‖_∞ ≤ tol``: contraction), or
+  ``max_iter`` steps (``converged`` False). Batched natively (one einsum per step for all MDPs).
+- :func:`policy_iteration`: Howard's policy iteration with exact evaluation; terminates in
+  finitely many steps with V*.
+- :func:`occupancy`: the paper's ``D_{μ,π}(s, a) = (1−γ) Σ_t γ^{t−1} P(s_t = s, a_t = a)``.
+"""
+
+from typing import NamedTuple
+
+import jax
+import jax.numpy as jnp
+
+__all__ = [
+    "PIResult",
+    "VIResult",
+    "evaluate",
+    "greedy",
+    "occupancy",
+    "policy_iteration",
+    "q_values",
+    "value_iteration",
+]
+
+
+class VIResult(NamedTuple):
+    """Value iteration's result: ``V [..., S]``, ``Q [..., S, A]`` (one more backup of V),
+    the greedy deterministic ``policy [..., S, A]`` (one-hot), ``iterations`` (int32, shared
+    by the batch), ``residual [...]`` (the last sup-norm step) and ``converged [...]``."""
+
+    V: jax.Array
+    Q: jax.Array
+    policy: jax.Array
+    iterations: jax.Array
+    residual: jax.Array
+    converged: jax.Array
+
+
+class PIResult(NamedTuple):
+    """Policy iteration's result: ``V [..., S]`` of the final ``policy [..., S, A]`` (one-hot),
+    ``iterations`` and ``converged`` (the policy was stable)."""
+
+    V: jax.Array
+    policy: jax.Array
+    iterations: jax.Array
+    converged: jax.Array
+
+
+def _check(P, C):
+    if P.ndim < 3 or P.shape[-1] != P.shape[-3]:
+        raise ValueError(f"P must have shape [..., S, A, S], got {P.shape}")
+    if C.shape != P.shape[:-1]:
+        raise ValueError(f"C must have shape {P.shape[:-1]} (P is {P.shape}), got {C.shape}")
+
+
+def _gamma(gamma, batch):
+    g = jnp.asarray(gamma, dtype=jnp.float64)
+    if g.ndim and g.shape != batch:
+        raise ValueError(f"gamma must be a scalar or have shape {batch}, got {g.shape}")
+    return g
+
+
+def q_values(P, C, V, gamma) -> jax.Array:
+    """One Bellman backup ``Q = C + γ P V``: ``[..., S, A]``."""
+    g = jnp.asarray(gamma, dtype=jnp.float64)
+    return C + g[..., None, None] * jnp.einsum("...sat,...t->...sa", P, V)
+
+
+def greedy(Q: jax.Array) -> jax.Array:
+    """The deterministic policy ``argmin_a Q`` as one-hot ``[..., S, A]`` (lowest index on ties)."""
+    return jax.nn.one_hot(jnp.argmin(Q, axis=-1), Q.shape[-1], dtype=jnp.float64)
+
+
+def _policy_matrices(P, C, pi):
+    P_pi = jnp.einsum("...sa,...sat->...st", pi, P)
+    C_pi = jnp.sum(pi * C, axis=-1)
+    return P_pi, C_pi
+
+
+def evaluate(P, C, gamma, pi) -> jax.Array:
+    """Exact ``V_π [..., S]`` of the (stochastic) policy ``pi [..., S, A]``: the linear solve
+    ``(I − γ P_π) V = C_π`` with ``P_π[s, s'] = Σ_a π(a|s) P[s, a, s']``."""
+    P, C, pi = (jnp.asarray(x, dtype=jnp.float64) for x in (P, C, pi))
+    _check(P, C)
+    if pi.shape != C.shape:
+        raise ValueError(f"pi must have shape {C.shape} ([..., S, A]), got {pi.shape}")
+    g = _gamma(gamma, P.shape[:-3])
+    return _evaluate(P, C, g, pi)
+
+
+@jax.jit
+def _evaluate(P, C, g, pi):
+    P_pi, C_pi = _policy_matrices(P, C, pi)
+    S = P.shape[-1]
+    M = jnp.eye(S, dtype=jnp.float64) - g[..., None, None] * P_pi
+    return jnp.linalg.solve(M, C_pi[..., None])[..., 0]
+
+
+def occupancy(P, mu, gamma, pi) -> jax.Array:
+    """The discounted state-action distribution ``D_{μ,π} [..., S, A]`` (sums to 1):
+    ``d = (1 − γ) μᵀ (I − γ P_π)^{-1}``, ``D(s, a) = d(s) π(a|s)``."""
+    P, mu, pi = (jnp.asarray(x, dtype=jnp.float64) for x in (P, mu, pi))
+    if P.ndim < 3 or mu.shape != P.shape[:-3] + P.shape[-1:] or pi.shape != P.shape[:-1]:
+        raise ValueError(
+            f"occupancy needs P [..., S, A, S], mu [..., S], pi [..., S, A]; got "
+            f"{P.shape}, {mu.shape}, {pi.shape}"
+        )
+    g = _gamma(gamma, P.shape[:-3])
+    return _occupancy(P, mu, g, pi)
+
+
+@jax.jit
+def _occupancy(P, mu, g, pi):
+    P_pi = jnp.einsum("...sa,...sat->...st", pi, P)
+    S = P.shape[-1]
+    M = jnp.eye(S, dtype=jnp.float64) - g[..., None, None] * P_pi
+    d = jnp.linalg.solve(jnp.swapaxes(M, -1, -2), mu[..., None])[..., 0]
+    d = jnp.maximum((1.0 - g[..., None]) * d, 0.0)
+    return d[..., None] * pi
+
+
+def value_iteration(P, C, gamma, *, tol: float = 1e-12, max_iter: int = 100_000, V0=None):
+    """Optimal values of every MDP in the batch by value iteration (module doc).
+
+    Args:
+      P: ``[..., S, A, S]``; C: ``[..., S, A]``; gamma: scalar or ``[...]`` in (0, 1).
+      tol: target sup-norm error on V* (the stopping rule guarantees it).
+      max_iter: cap on the number of backups.
+      V0: optional warm start ``[..., S]`` (default zeros).
+
+    Returns:
+      :class:`VIResult`.
+    """
+    P, C = jnp.asarray(P, dtype=jnp.float64), jnp.asarray(C, dtype=jnp.float64)
+    _check(P, C)
+    if not tol > 0:
+        raise ValueError(f"tol must be > 0, got {tol!r}")
+    if isinstance(max_iter, bool) or not isinstance(max_iter, int) or max_iter < 1:
+        raise ValueError(f"max_iter must be a positive integer, got {max_iter!r}")
+    g = _gamma(gamma, P.shape[:-3])
+    V0 = jnp.zeros(P.shape[:-2], jnp.float64) if V0 is None else jnp.asarray(V0, jnp.float64)
+    if V0.shape != P.shape[:-2]:
+        raise ValueError(f"V0 must have shape {P.shape[:-2]}, got {V0.shape}")
+    return _value_iteration(P, C, g, V0, tol, max_iter)
+
+
+def _vi_core(P, C, g, V0, tol, max_iter):
+    g_b = jnp.broadcast_to(g, P.shape[:-3])
+    threshold = tol * (1.0 - g_b) / g_b  # γδ/(1−γ) ≤ tol
+
+    def cond(carry):
+        _, delta, k = carry
+        return (k < max_iter) & jnp.any(delta > threshold)
+
+    def body(carry):
+        V, _, k = carry
+        V_new = jnp.min(q_values(P, C, V, g), axis=-1)
+        delta = jnp.max(jnp.abs(V_new - V), axis=-1)
+        return V_new, delta, k + 1
+
+    inf = jnp.full(P.shape[:-3], jnp.inf, jnp.float64)
+    V, delta, k = jax.lax.while_loop(cond, body, (V0, inf, jnp.int32(0)))
+    Q = q_values(P, C, V, g)
+    return VIResult(V, Q, greedy(Q), k, delta, delta <= threshold)
+
+
+_value_iteration = jax.jit(_vi_core, static_argnums=(4, 5))
+
+
+def policy_iteration(P, C, gamma, *, max_iter: int = 1000) -> PIResult:
+    """Howard's policy iteration: exact evaluation (linear solve), greedy improvement, stop when
+    the policy is stable (switching only on a strict improvement > 1e-12, so ties cannot
+    cycle). Batched over leading axes (stops when every MDP is stable)."""
+    P, C = jnp.asarray(P, dtype=jnp.float64), jnp.asarray(C, dtype=jnp.float64)
+    _check(P, C)
+    g = _gamma(gamma, P.shape[:-3])
+    return _policy_iteration(P, C, g, max_iter)
+
+
+def _pi_core(P, C, g, max_iter):
+    def improve(pi, V):
+        Q = q_values(P, C, V, g)
+        current = jnp.sum(pi * Q, axis=-1)
+        better = jnp.min(Q, axis=-1) < current - 1e-12
+        return jnp.where(better[..., None], greedy(Q), pi), jnp.any(better)
+
+    def cond(carry):
+        _, changed, k = carry
+        return changed & (k < max_iter)
+
+    def body(carry):
+        pi, _, k = carry
+        pi, changed = improve(pi, _evaluate(P, C, g, pi))
+        return pi, changed, k + 1
+
+    pi0 = greedy(C)
+    pi, changed, k = jax.lax.while_loop(cond, body, (pi0, jnp.bool_(True), jnp.int32(0)))
+    return PIResult(_evaluate(P, C, g, pi), pi, k, ~changed)
+
+
+_policy_iteration = jax.jit(_pi_core, static_argnums=(3,))
