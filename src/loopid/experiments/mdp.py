@@ -1,0 +1,252 @@
+r"""Finite-MDP scenarios: the paper's theory made visible, through the same loop and results.
+
+Scenarios (:data:`MDP_SCENARIOS`):
+
+- ``mdp-random``: a random MDP (S = 10, A = 3, Dirichlet(0.3) rows, costs U[0, 1], γ = 0.9),
+  ν uniform over the state-action pairs (the best ν for Batch), count-estimator model: the
+  realisable case, where DAgger and Batch both become optimal.
+- ``mdp-trap``: :func:`loopid.systems.mdp.trap_mdp` with ν = D_{μ,π_ε} of "walk, but act at
+  random with probability ε = 10⁻³" (a base policy's distribution with action noise): Batch's
+  policy jumps into the region ν rarely sees (huge c_ν^π̂), DAgger's does not.
+- ``mdp-trap-hinge``: the same with the deterministic classifier model (online hinge): a
+  misspecified class on a stochastic system (the walk slips), i.e. the agnostic case.
+
+Methods (:data:`MDP_METHODS`): ``dagger`` (p_n = ½), ``batch`` (p_n = 0), ``abbeel`` (ν at
+n = 2, then the policy only); the fractions come from
+:func:`loopid.algorithms.methods.policy_fractions`. Policy draws are ``geometric`` (exact
+draws from D_{μ,π}, the paper's analysis). Every method of a scenario shares one compiled cell.
+
+Extra result columns (:func:`loopid.algorithms.mdp_agent.mdp_diagnostics`): ``j_policy``,
+``j_best``, ``j_mixture``, ``j_optimal``, ``bound`` (Theorem 3.1 while all data came from ν,
+Lemma 4.1 once the policies contribute), ``eps_prd_l1``, ``eps_prd_kl``, ``eps_mdl_l1``,
+``eps_oc``, ``c_nu``, ``c_nu_policy``. ``test_cost`` is the exact J of the iteration's policy.
+"""
+
+from collections.abc import Callable
+from functools import lru_cache
+from pathlib import Path
+from typing import NamedTuple
+
+import jax
+import numpy as np
+
+from loopid.algorithms import methods as M
+from loopid.algorithms.loop import Row, Trace, make_cell, run_learning
+from loopid.algorithms.mdp_agent import (
+    classifier_model,
+    counts_model,
+    explicit_nu,
+    mdp_agent,
+    mdp_diagnostics,
+    mdp_plant,
+    policy_nu,
+)
+from loopid.systems.mdp import TRAP_WALK, FiniteMDP, random_mdp, trap_mdp
+
+__all__ = ["MDP_METHODS", "MDP_SCENARIOS", "MDPScenario", "mdp_figure", "run_mdp"]
+
+MDP_METHODS = ("dagger", "batch", "abbeel")
+_FRACTIONS = {"dagger": "dagger-t", "batch": "batch-t", "abbeel": "abbeel"}
+
+
+class MDPScenario(NamedTuple):
+    """One finite-MDP experiment. ``system``: ``"random"`` or ``"trap"``; ``model``:
+    ``"counts"`` or ``"hinge"``; ``nu``: ``"uniform"`` or ``"base"`` (D_{μ,π_ε} of the walk
+    policy with action noise ``epsilon``); ``alpha``: count pseudo-weight; ``eta``/``margin``:
+    the classifier's step and prior margin; ``horizon``: rollout length (the geometric draw is
+    truncated there: bias ≤ γ^horizon)."""
+
+    name: str
+    system: str = "random"
+    n_states: int = 10
+    n_actions: int = 3
+    concentration: float = 0.3
+    length: int = 6
+    slip: float = 0.2
+    gamma: float = 0.9
+    mdp_seed: int = 0
+    nu: str = "uniform"
+    epsilon: float = 1e-3
+    model: str = "counts"
+    alpha: float = 0.1
+    eta: float = 1.0
+    margin: float = 0.5
+    iterations: int = 30
+    samples: int = 100
+    horizon: int = 150
+    seeds: int = 8
+
+
+MDP_SCENARIOS = {
+    "mdp-random": MDPScenario("mdp-random"),
+    "mdp-trap": MDPScenario("mdp-trap", system="trap", nu="base", samples=50),
+    "mdp-trap-hinge": MDPScenario(
+        "mdp-trap-hinge", system="trap", nu="base", samples=50, model="hinge"
+    ),
+}
+
+
+def _scenario(scenario) -> MDPScenario:
+    if isinstance(scenario, MDPScenario):
+        return scenario
+    if scenario not in MDP_SCENARIOS:
+        raise ValueError(f"unknown MDP scenario {scenario!r}; choose from {sorted(MDP_SCENARIOS)}")
+    return MDP_SCENARIOS[scenario]
+
+
+def scenario_mdp(s: MDPScenario) -> FiniteMDP:
+    """The scenario's true MDP (a random one is drawn from ``jax.random.key(mdp_seed)``)."""
+    if s.system == "random":
+        key = jax.random.key(s.mdp_seed)
+        return random_mdp(
+            key, s.n_states, s.n_actions, gamma=s.gamma, concentration=s.concentration
+        )
+    if s.system == "trap":
+        return trap_mdp(s.length, slip=s.slip, gamma=s.gamma)
+    raise ValueError(f"system must be 'random' or 'trap', got {s.system!r}")
+
+
+def scenario_nu(s: MDPScenario, mdp: FiniteMDP):
+    """``(dist [S, A], nu)`` of the scenario's exploration distribution."""
+    S, A = mdp.n_states, mdp.n_actions
+    if s.nu == "uniform":
+        dist = np.full((S, A), 1.0 / (S * A))
+        return dist, explicit_nu(mdp, dist)
+    if s.nu == "base":
+        if not 0.0 <= s.epsilon <= 1.0:
+            raise ValueError(f"epsilon must lie in [0, 1], got {s.epsilon!r}")
+        pi0 = np.full((S, A), s.epsilon / A)
+        pi0[:, TRAP_WALK] += 1.0 - s.epsilon
+        dist, nu = policy_nu(mdp, pi0)
+        return np.asarray(dist), nu
+    raise ValueError(f"nu must be 'uniform' or 'base', got {s.nu!r}")
+
+
+def scenario_model(s: MDPScenario, mdp: FiniteMDP):
+    """The scenario's model class and learner."""
+    if s.model == "counts":
+        return counts_model(mdp.n_states, mdp.n_actions, alpha=s.alpha)
+    if s.model == "hinge":
+        return classifier_model(mdp.n_states, mdp.n_actions, eta=s.eta, margin=s.margin)
+    raise ValueError(f"model must be 'counts' or 'hinge', got {s.model!r}")
+
+
+class MDPSetup(NamedTuple):
+    """Everything a scenario's methods share, including the compiled cell."""
+
+    mdp: FiniteMDP
+    nu_dist: np.ndarray
+    plant: object
+    agent: object
+    nu: Callable
+    cell: tuple
+
+
+@lru_cache(maxsize=8)
+def mdp_setup(s: MDPScenario) -> MDPSetup:
+    """Build (and cache) the scenario's MDP, ν, agent, diagnostics and compiled cell."""
+    mdp = scenario_mdp(s)
+    dist, nu = scenario_nu(s, mdp)
+    model = scenario_model(s, mdp)
+    plant = mdp_plant(mdp, s.horizon)
+    agent = mdp_agent(mdp, model)
+    diag = mdp_diagnostics(mdp, dist, model)
+    cell = make_cell(
+        plant, agent, nu, samples=s.samples, iterations=s.iterations, n_test=1,
+        mode="geometric", gamma=s.gamma, diagnostics=diag,
+    )  # fmt: skip
+    return MDPSetup(mdp, dist, plant, agent, nu, cell)
+
+
+def run_mdp(
+    method: str,
+    scenario,
+    seeds=None,
+    progress: Callable[[int, Row], None] | None = None,
+) -> Trace:
+    """Run ``method`` (:data:`MDP_METHODS`) on a finite-MDP scenario (a name in
+    :data:`MDP_SCENARIOS` or an :class:`MDPScenario`) for every seed (default
+    ``range(scenario.seeds)``). The Trace's ``rows.extra`` holds the exact diagnostics."""
+    s = _scenario(scenario)
+    if method not in MDP_METHODS:
+        raise ValueError(f"unknown MDP method {method!r}; choose from {', '.join(MDP_METHODS)}")
+    seeds = list(range(s.seeds)) if seeds is None else list(seeds)
+    setup = mdp_setup(s)
+    fractions = M.policy_fractions(_FRACTIONS[method], s.iterations)
+    return run_learning(
+        setup.plant, setup.agent, setup.nu, fractions, seeds, samples=s.samples, n_test=1,
+        mode="geometric", gamma=s.gamma, progress=progress, cell=setup.cell,
+    )  # fmt: skip
+
+
+_LABEL = {"dagger": "DAgger", "batch": "Batch", "abbeel": "Abbeel"}
+_COLOR = {"dagger": "C0", "batch": "C3", "abbeel": "C2"}
+
+
+def _column(table, name) -> np.ndarray:
+    return np.asarray(table.column(name).to_numpy(zero_copy_only=False))
+
+
+def mdp_figure(table, path) -> Path:
+    """Plot J against samples per MDP scenario in ``table`` (a results ``pyarrow.Table``).
+
+    Left panel per scenario: mean ``j_policy`` per method (shaded: min-max over seeds) and
+    J*. Right panel: the true gap ``j_best − J*`` (solid) beside the bound's gap ``bound − J*``
+    (dashed) per method, log scale (a zero gap is drawn at 1e-6; an infinite bound as a
+    triangle at the top edge). Saves to
+    ``path`` (format from its suffix) and returns the path.
+    """
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    needed = ("scenario", "method", "samples", "j_policy", "j_best", "j_optimal", "bound")
+    missing = [c for c in needed if c not in table.column_names]
+    if missing:
+        raise ValueError(f"table has no MDP diagnostics column(s) {missing}")
+    cols = {c: _column(table, c) for c in needed}
+    keep = ~np.isnan(cols["j_policy"].astype(np.float64))
+    cols = {c: v[keep] for c, v in cols.items()}
+    scenarios = sorted(set(cols["scenario"]))
+    if not scenarios:
+        raise ValueError("table holds no MDP rows")
+    fig, axes = plt.subplots(len(scenarios), 2, figsize=(10, 3.6 * len(scenarios)), squeeze=False)
+    for row, name in enumerate(scenarios):
+        ax_j, ax_gap = axes[row]
+        in_s = cols["scenario"] == name
+        j_star = float(np.mean(cols["j_optimal"][in_s]))
+        top = 1.0
+        for method in sorted(set(cols["method"][in_s])):
+            sel = in_s & (cols["method"] == method)
+            x = np.unique(cols["samples"][sel])
+
+            def per_x(v, reduce, sel=sel, x=x):
+                return np.array([reduce(v[sel & (cols["samples"] == xi)]) for xi in x])
+
+            color, label = _COLOR.get(method, "k"), _LABEL.get(method, method)
+            j = cols["j_policy"]
+            ax_j.plot(x, per_x(j, np.mean), color=color, label=label)
+            ax_j.fill_between(x, per_x(j, np.min), per_x(j, np.max), color=color, alpha=0.2)
+            gap = np.maximum(per_x(cols["j_best"], np.mean) - j_star, 1e-6)
+            bound = per_x(cols["bound"], np.mean) - j_star
+            finite = np.isfinite(bound)
+            top = max(top, float(np.max(bound[finite], initial=1.0)), float(gap.max()))
+            ax_gap.plot(x, gap, color=color, label=f"{label}: J(best) − J*")
+            ax_gap.plot(
+                x[finite], bound[finite], color=color, ls="--", label=f"{label}: bound − J*"
+            )
+            if (~finite).any():
+                ax_gap.plot(
+                    x[~finite], np.full((~finite).sum(), top), color=color, ls="", marker="^"
+                )
+        ax_j.axhline(j_star, color="k", ls=":", label="J*")
+        ax_j.set(title=f"{name}: J of the learnt policy", xlabel="samples", ylabel="J_μ(π)")
+        ax_gap.set(title=f"{name}: gap and bound", xlabel="samples", ylabel="gap", yscale="log")
+        ax_j.legend(fontsize=8)
+        ax_gap.legend(fontsize=7)
+    fig.tight_layout()
+    path = Path(path)
+    fig.savefig(path)
+    plt.close(fig)
+    return path
