@@ -358,7 +358,9 @@ class GymSystem:
             if vectorization == "sync"
             else gymnasium.vector.AsyncVectorEnv
         )
-        self.envs = vec([self.env_fn] * self.num_envs, autoreset_mode=AutoresetMode.DISABLED)
+        self.envs = vec(
+            [self.env_fn] * self.num_envs, copy=False, autoreset_mode=AutoresetMode.DISABLED
+        )
 
     def close(self) -> None:
         self.envs.close()
@@ -387,7 +389,7 @@ class GymSystem:
     def _reset(self, mask: np.ndarray, seeds: list) -> np.ndarray:
         options = {**self.reset_options, "reset_mask": mask}
         obs, _ = self.envs.reset(seed=seeds, options=options)
-        return np.asarray(obs, np.float64)
+        return np.array(obs, np.float64)  # a copy: the vector env reuses its buffer
 
     def rollouts(self, policies: Sequence[Any], slots: Sequence[Slot]) -> Rollouts:
         """Fill every slot (module docstring) through the vector env; returns :class:`Rollouts`.
@@ -434,41 +436,43 @@ class GymSystem:
 
         obs = assign(np.ones(E, bool), None)
         act_dtype = self.action_dtype
-        while (slot >= 0).any():
-            run = slot >= 0
-            a = np.tile(self.a_op, (E, 1))
-            for p in np.unique(pol_of[slot[run]]):
-                rows = run & (pol_of[np.maximum(slot, 0)] == p)
-                j = slot[rows]
-                a[rows] = policies[p].act(obs[rows], tau[rows], idx_of[j]) + eps[j, pos[rows]]
-            ok = np.all(np.isfinite(a), axis=1)
-            a = np.clip(np.where(ok[:, None], a, self.a_op), self.low, self.high)
-            a = a.astype(act_dtype).astype(np.float64)
-            nxt, rew, term, trunc, _ = self.envs.step(a.astype(act_dtype))
-            nxt = np.asarray(nxt, np.float64)
-            ok &= np.all(np.isfinite(nxt), axis=1)
+        a = np.tile(self.a_op, (E, 1))
+        single = len(policies) == 1
+        while True:
+            i = np.flatnonzero(slot >= 0)  # the sub-envs running a slot
+            if i.size == 0:
+                break
+            j, p_, tau_i = slot[i], pos[i], tau[i]
+            a[:] = self.a_op
+            groups = [(0, slice(None))] if single else [(p, pol_of[j] == p) for p in set(pol_of[j])]
+            for p, g in groups:
+                a[i[g]] = policies[p].act(obs[i[g]], tau_i[g], idx_of[j[g]]) + eps[j[g], p_[g]]
+            ok = np.isfinite(a).all(axis=1)
+            a[~ok] = self.a_op
+            applied = np.minimum(np.maximum(a, self.low), self.high).astype(act_dtype)
+            nxt, rew, term, trunc, _ = self.envs.step(applied)
+            nxt = np.array(nxt, np.float64)  # a copy: the vector env reuses its buffer
+            ok &= np.isfinite(nxt).all(axis=1)
 
-            i = np.flatnonzero(run)
-            j, p_ = slot[i], pos[i]
-            d = a[i] - self.a_op
-            valid = ok[i]
+            ok_i = ok[i]
+            d = applied[i].astype(np.float64) - self.a_op
+            valid = ok_i.copy()
             if self.stop_norm is not None:  # training slots only
                 e = self.observed(obs[i]) - self.target
-                size = np.linalg.norm(np.concatenate([e, d], axis=1), axis=1)
+                size = np.sqrt((e * e).sum(axis=1) + (d * d).sum(axis=1))
                 valid &= (size <= self.stop_norm) | ~restart_of[j]
             x[j, p_], x_next[j, p_], du[j, p_] = obs[i], nxt[i], d
-            t_buf[j, p_], mask[j, p_], reward[j, p_] = tau[i], valid, rew[i]
-            steps[j] += ok[i]
-            terminated[j] |= term[i] & ok[i]
-            finite[j] &= ok[i]
+            t_buf[j, p_], mask[j, p_], reward[j, p_] = tau_i, valid, rew[i]
+            steps[j] += ok_i
+            terminated[j] |= term[i] & ok_i
+            finite[j] &= ok_i
 
-            pos[run] += 1
-            tau[run] += 1
-            ended = term | trunc | ~ok | (tau >= T) | (pos >= T)
-            ended[run] |= ~valid
+            pos[i] += 1
+            tau[i] += 1
+            ended = term | trunc | ~ok
+            ended[i] |= ~valid | (tau[i] >= T) | (pos[i] >= T)
             # a slot without restart is done at its episode's end
-            done = run & ended
-            done[done] &= ~restart_of[slot[done]]
+            done = i[ended[i] & ~restart_of[j]]
             pos[done] = T
             obs = nxt
             if ended.any():
