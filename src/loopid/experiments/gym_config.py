@@ -306,13 +306,14 @@ def figure(table: pa.Table, path, *, title: str = "") -> None:
 
     df = {name: np.asarray(table.column(name).to_pylist()) for name in table.column_names}
     fig, ax = plt.subplots(figsize=(6, 4))
-    for method in dict.fromkeys(df["method"].tolist()):
+    for k, method in enumerate(dict.fromkeys(df["method"].tolist())):
         sel = df["method"] == method
         samples = np.unique(df["samples"][sel])
         costs = [df["test_cost"][sel & (df["samples"] == s)] for s in samples]
         mean = np.array([c.mean() for c in costs])
         se = np.array([c.std(ddof=1) / np.sqrt(c.size) if c.size > 1 else 0.0 for c in costs])
-        ax.plot(samples, mean, marker="o", ms=3, label=method)
+        style = ("-", "--", ":")[k % 3]  # dashes keep coinciding curves visible
+        ax.plot(samples, mean, style, marker="o", ms=3, label=method)
         ax.fill_between(samples, np.maximum(mean - se, 1e-12), mean + se, alpha=0.25)
     ax.set_yscale("log")
     ax.set_xlabel("samples collected")
