@@ -1,8 +1,9 @@
 r"""Exact dynamic programming on finite MDPs, batched over leading axes.
 
-Shapes: ``P [..., S, A, S]`` (``P[s, a, s'] = T_sa(s')``), ``C [..., S, A]``, ``gamma`` a
-scalar or ``[...]``; policies are probability tables ``pi [..., S, A]`` (a deterministic policy
-is one-hot; :func:`greedy` makes one). Costs are minimised.
+Shapes: ``P [..., S, A, S]`` (``P[s, a, s'] = T_sa(s')``), ``C [..., S, A]`` (batch axes
+broadcast against P's: one cost for many models), ``gamma`` a scalar or ``[...]``; policies
+are probability tables ``pi [..., S, A]`` (a deterministic policy is one-hot; :func:`greedy`
+makes one). Costs are minimised.
 
 - :func:`evaluate`: ``V_π = (I − γ P_π)^{-1} C_π`` by a linear solve (exact up to rounding).
 - :func:`value_iteration`: ``V ← min_a [C + γ P V]`` in a ``lax.while_loop`` until the sup-norm
@@ -17,6 +18,7 @@ from typing import NamedTuple
 
 import jax
 import jax.numpy as jnp
+import numpy as np
 
 __all__ = [
     "PIResult",
@@ -54,15 +56,23 @@ class PIResult(NamedTuple):
 
 
 def _check(P, C):
+    """Shapes of P and C; C's batch axes may broadcast against P's. Returns the batch shape."""
     if P.ndim < 3 or P.shape[-1] != P.shape[-3]:
         raise ValueError(f"P must have shape [..., S, A, S], got {P.shape}")
-    if C.shape != P.shape[:-1]:
-        raise ValueError(f"C must have shape {P.shape[:-1]} (P is {P.shape}), got {C.shape}")
+    try:
+        if C.shape[-2:] != P.shape[-3:-1]:
+            raise ValueError
+        return np.broadcast_shapes(P.shape[:-3], C.shape[:-2])
+    except ValueError:
+        raise ValueError(
+            f"C must have shape [..., {P.shape[-3]}, {P.shape[-2]}] broadcasting "
+            f"with P {P.shape}, got {C.shape}"
+        ) from None
 
 
 def _gamma(gamma, batch):
     g = jnp.asarray(gamma, dtype=jnp.float64)
-    if g.ndim and g.shape != batch:
+    if g.ndim and np.broadcast_shapes(g.shape, batch) != batch:
         raise ValueError(f"gamma must be a scalar or have shape {batch}, got {g.shape}")
     return g
 
@@ -88,10 +98,12 @@ def evaluate(P, C, gamma, pi) -> jax.Array:
     """Exact ``V_π [..., S]`` of the (stochastic) policy ``pi [..., S, A]``: the linear solve
     ``(I − γ P_π) V = C_π`` with ``P_π[s, s'] = Σ_a π(a|s) P[s, a, s']``."""
     P, C, pi = (jnp.asarray(x, dtype=jnp.float64) for x in (P, C, pi))
-    _check(P, C)
-    if pi.shape != C.shape:
-        raise ValueError(f"pi must have shape {C.shape} ([..., S, A]), got {pi.shape}")
-    g = _gamma(gamma, P.shape[:-3])
+    batch = _check(P, C)
+    if pi.shape[-2:] != C.shape[-2:] or np.broadcast_shapes(batch, pi.shape[:-2]) != batch:
+        raise ValueError(
+            f"pi must have shape {(*batch, *C.shape[-2:])} ([..., S, A]), got {pi.shape}"
+        )
+    g = _gamma(gamma, batch)
     return _evaluate(P, C, g, pi)
 
 
@@ -139,20 +151,21 @@ def value_iteration(P, C, gamma, *, tol: float = 1e-12, max_iter: int = 100_000,
       :class:`VIResult`.
     """
     P, C = jnp.asarray(P, dtype=jnp.float64), jnp.asarray(C, dtype=jnp.float64)
-    _check(P, C)
+    batch = _check(P, C)
     if not tol > 0:
         raise ValueError(f"tol must be > 0, got {tol!r}")
     if isinstance(max_iter, bool) or not isinstance(max_iter, int) or max_iter < 1:
         raise ValueError(f"max_iter must be a positive integer, got {max_iter!r}")
-    g = _gamma(gamma, P.shape[:-3])
-    V0 = jnp.zeros(P.shape[:-2], jnp.float64) if V0 is None else jnp.asarray(V0, jnp.float64)
-    if V0.shape != P.shape[:-2]:
-        raise ValueError(f"V0 must have shape {P.shape[:-2]}, got {V0.shape}")
+    g = _gamma(gamma, batch)
+    shape = (*batch, P.shape[-1])
+    V0 = jnp.zeros(shape, jnp.float64) if V0 is None else jnp.asarray(V0, jnp.float64)
+    if V0.shape != shape:
+        raise ValueError(f"V0 must have shape {shape}, got {V0.shape}")
     return _value_iteration(P, C, g, V0, tol, max_iter)
 
 
 def _vi_core(P, C, g, V0, tol, max_iter):
-    g_b = jnp.broadcast_to(g, P.shape[:-3])
+    g_b = jnp.broadcast_to(g, V0.shape[:-1])
     threshold = tol * (1.0 - g_b) / g_b  # γδ/(1−γ) ≤ tol
 
     def cond(carry):
@@ -165,7 +178,7 @@ def _vi_core(P, C, g, V0, tol, max_iter):
         delta = jnp.max(jnp.abs(V_new - V), axis=-1)
         return V_new, delta, k + 1
 
-    inf = jnp.full(P.shape[:-3], jnp.inf, jnp.float64)
+    inf = jnp.full(V0.shape[:-1], jnp.inf, jnp.float64)
     V, delta, k = jax.lax.while_loop(cond, body, (V0, inf, jnp.int32(0)))
     Q = q_values(P, C, V, g)
     return VIResult(V, Q, greedy(Q), k, delta, delta <= threshold)
@@ -179,9 +192,9 @@ def policy_iteration(P, C, gamma, *, max_iter: int = 1000) -> PIResult:
     the policy is stable (switching only on a strict improvement > 1e-12, so ties cannot
     cycle). Batched over leading axes (stops when every MDP is stable)."""
     P, C = jnp.asarray(P, dtype=jnp.float64), jnp.asarray(C, dtype=jnp.float64)
-    _check(P, C)
-    g = _gamma(gamma, P.shape[:-3])
-    return _policy_iteration(P, C, g, max_iter)
+    batch = _check(P, C)
+    g = _gamma(gamma, batch)
+    return _policy_iteration(P, jnp.broadcast_to(C, (*batch, *C.shape[-2:])), g, max_iter)
 
 
 def _pi_core(P, C, g, max_iter):

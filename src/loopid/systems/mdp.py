@@ -15,6 +15,7 @@ The trap MDP (:func:`trap_mdp`) is the paper's section-3 drawback of Batch made 
 docstring gives the construction and why Batch falls into it while DAgger does not.
 """
 
+from functools import lru_cache
 from typing import NamedTuple
 
 import jax
@@ -138,20 +139,29 @@ def random_mdp(
         raise ValueError(f"gamma must lie in (0, 1), got {gamma!r}")
     if not concentration > 0:
         raise ValueError(f"concentration must be > 0, got {concentration!r}")
-    S, A = int(n_states), int(n_actions)
+    return _random_mdp_fn(int(n_states), int(n_actions), float(gamma), float(concentration))(key)
 
-    def one(k):
-        k_p, k_c = jax.random.split(k)
-        alpha = jnp.full((S,), concentration, dtype=jnp.float64)
-        P = jax.random.dirichlet(k_p, alpha, (S, A), dtype=jnp.float64)
-        P = P / jnp.sum(P, axis=-1, keepdims=True)
-        C = jax.random.uniform(k_c, (S, A), dtype=jnp.float64)
-        return FiniteMDP(P, C, _f64(gamma), jnp.full((S,), 1.0 / S), _f64(0.0), _f64(1.0))
 
-    f = one
-    for _ in range(key.ndim):
-        f = jax.vmap(f)
-    return jax.jit(f)(key)
+@lru_cache(maxsize=16)
+def _random_mdp_fn(S: int, A: int, gamma: float, concentration: float):
+    """The jitted sampler for one configuration (cached: compiled once per shape of key)."""
+
+    @jax.jit
+    def sample(key):
+        def one(k):
+            k_p, k_c = jax.random.split(k)
+            alpha = jnp.full((S,), concentration, dtype=jnp.float64)
+            P = jax.random.dirichlet(k_p, alpha, (S, A), dtype=jnp.float64)
+            P = P / jnp.sum(P, axis=-1, keepdims=True)
+            C = jax.random.uniform(k_c, (S, A), dtype=jnp.float64)
+            return FiniteMDP(P, C, _f64(gamma), jnp.full((S,), 1.0 / S), _f64(0.0), _f64(1.0))
+
+        f = one
+        for _ in range(key.ndim):
+            f = jax.vmap(f)
+        return f(key)
+
+    return sample
 
 
 _MOVES = np.array([(-1, 0), (0, 1), (1, 0), (0, -1)])  # N, E, S, W
