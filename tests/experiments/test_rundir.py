@@ -1,0 +1,87 @@
+"""Run directories (issue 5 "Must show" 7): resume skips finished cells, same table, foreign
+configurations refused."""
+
+import shutil
+
+import numpy as np
+import pytest
+
+import loopid.experiments.execute as execute
+from loopid.experiments.results import read_table
+from loopid.experiments.scenarios import scenario
+
+SCENARIOS = [
+    scenario("hover", iterations=3, seeds=2, test_trajectories=4),
+    scenario("hover-delay", iterations=3, seeds=2, test_trajectories=4),
+]
+METHODS = ["expert"]
+
+
+@pytest.fixture
+def counted(monkeypatch):
+    """Count the cells actually computed (run_cells calls runner.run once per cell)."""
+    calls = []
+    real = execute.run
+
+    def counting(method, s, seeds=None, **kw):
+        calls.append((s.name, method))
+        return real(method, s, seeds, **kw)
+
+    monkeypatch.setattr(execute, "run", counting)
+    return calls
+
+
+def test_resume_skips_finished_cells(tmp_path, counted):
+    logs = []
+    first = execute.run_cells(tmp_path, SCENARIOS, METHODS, log=logs.append)
+    assert counted == [("hover", "expert"), ("hover-delay", "expert")]
+    assert first.num_rows == 2 * 2 * 3
+    assert (tmp_path / "config.toml").exists() and (tmp_path / "results.parquet").exists()
+    assert read_table(tmp_path / "results.parquet").equals(first)
+
+    counted.clear()
+    logs.clear()
+    second = execute.run_cells(tmp_path, SCENARIOS, METHODS, log=logs.append)
+    assert counted == []  # nothing recomputed
+    assert all("already finished" in line for line in logs) and len(logs) == 2
+    assert second.equals(first)
+
+    # a run killed after its first cell: only the missing cell is computed, same table
+    (tmp_path / "cells" / "hover-delay__expert.parquet").unlink()
+    third = execute.run_cells(tmp_path, SCENARIOS, METHODS)
+    assert counted == [("hover-delay", "expert")]
+    assert third.equals(first)
+    # the table holds what the cells say: the expert's flat line, per seed
+    costs = np.asarray(third.column("test_cost")).reshape(2, 2, 3)
+    np.testing.assert_array_equal(costs, np.repeat(costs[:, :, :1], 3, axis=2))
+
+
+@pytest.fixture(scope="module")
+def finished(tmp_path_factory):
+    """A run directory holding the finished run of SCENARIOS × METHODS."""
+    path = tmp_path_factory.mktemp("finished")
+    execute.run_cells(path, SCENARIOS, METHODS)
+    return path
+
+
+@pytest.mark.parametrize(
+    "change",
+    [
+        {"scenarios": [SCENARIOS[0].replace(test_trajectories=5), SCENARIOS[1]]},
+        {"scenarios": [SCENARIOS[0]]},
+        {"methods": ["expert", "dagger-t"]},
+        {"seeds": [0, 1, 2]},
+    ],
+)
+def test_different_configuration_refused(finished, tmp_path, counted, change):
+    out = tmp_path / "run"
+    shutil.copytree(finished, out)
+    before = sorted(p.name for p in (out / "cells").iterdir())
+    kwargs = {"scenarios": SCENARIOS, "methods": METHODS, "seeds": None} | change
+    with pytest.raises(ValueError, match="different configuration"):
+        execute.run_cells(out, kwargs["scenarios"], kwargs["methods"], kwargs["seeds"])
+    assert counted == []  # refused before computing anything
+    assert sorted(p.name for p in (out / "cells").iterdir()) == before  # nothing touched
+    # the same configuration is accepted (and skips everything)
+    execute.run_cells(out, SCENARIOS, METHODS)
+    assert counted == []
