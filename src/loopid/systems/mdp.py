@@ -254,10 +254,12 @@ def trap_mdp(
       M = 750). The learnt policy then sends all its future mass where ν has almost none:
       ``c_ν^π̂ ≥ D_{μ,π̂}(p, ·)/ν(p, ·)`` is in the thousands, Theorem 3.1's bound is vacuous
       and the policy's J is ``γ²/(1−γ)`` (8.1 at γ = 0.9) instead of J* (≈ 2.7).
-    - DAgger's policy half is drawn from ``D_{μ,π_n}``: the jumping policy puts mass (1−γ)γ on
-      the lure pair it uses, so its outcome (the pit) is seen within an iteration or two; each
-      lure action is tried at most once that way, after which walking is optimal on the model
-      too. ``c_ν^{π*}`` stays small (ν follows π* but for ε), so Lemma 4.1's bound only needs
+    - DAgger's policy half is drawn from ``D_{μ,π_n}``: a policy that walks k cells and jumps
+      puts mass ≈ (1−γ)γ^k on the unseen pair it relies on (a jump, then a lure action), so
+      that pair's true outcome is seen within an iteration or two and the model stops
+      believing in it. Each of the ≤ length + 2 such pairs is corrected at most once, after
+      which walking is optimal on the model too (about 10 iterations of 50 samples with the
+      defaults). ``c_ν^{π*}`` stays small (ν follows π* but for ε), so Lemma 4.1's bound only needs
       the model to be right where ν and the policies go.
 
     The walk's slip makes the system stochastic, so a deterministic model class (the classifier)
