@@ -247,12 +247,14 @@ def trap_mdp(
     "stay in s" (the count estimator's and the classifier's default in
     :mod:`loopid.algorithms.mdp_agent`):
 
-    - ν puts mass ≈ γ ε/2 on each lure pair (ℓ, a): a jump must be drawn first. Until every
-      (ℓ, a) has been sampled, the model believes some lure action keeps the agent at ℓ at
-      cost 0 forever, so value iteration on it jumps. After M ν-draws that happens with
-      probability ≥ 1 − Π_a (1 − (1 − ν(ℓ, a))^M) (exact; about 0.98 for ε = 10⁻³, γ = 0.9,
-      M = 750). The learnt policy then sends all its future mass where ν has almost none:
-      ``c_ν^π̂ ≥ D_{μ,π̂}(p, ·)/ν(p, ·)`` is in the thousands, Theorem 3.1's bound is vacuous
+    - ν reaches the lure only after one of its rare random jumps (ν(ℓ) ≈ γ(1−γ)ε/2 per unit
+      of corridor occupancy), and then mostly takes the walk action there, so the lure's jump
+      pair has mass ≈ ν(ℓ)·ε/2 (1.2·10⁻⁷ with the defaults). Until every (ℓ, a) has been
+      sampled, the model believes some lure action keeps the agent at ℓ at cost 0 forever, so
+      value iteration on it jumps. After M ν-draws that happens with probability ≥
+      1 − Π_a (1 − (1 − ν(ℓ, a))^M) (exact; > 0.9999 for ε = 10⁻³, γ = 0.9, M = 1450, the
+      ``mdp-trap`` budget). The learnt policy then sends all its future mass where ν has almost
+      none: ``c_ν^π̂ ≥ D_{μ,π̂}(p, ·)/ν(p, ·)`` is in the thousands, Theorem 3.1's bound is vacuous
       and the policy's J is ``γ²/(1−γ)`` (8.1 at γ = 0.9) instead of J* (≈ 2.7).
     - DAgger's policy half is drawn from ``D_{μ,π_n}``: a policy that walks k cells and jumps
       puts mass ≈ (1−γ)γ^k on the unseen pair it relies on (a jump, then a lure action), so
