@@ -15,26 +15,46 @@ never NaN.
   fallback when ``dlqr`` does not converge, SPEC §4.4)
 - :func:`ilqr` -> :class:`ILQRSolution` (the funnel expert on the true simulator)
 - :func:`rollout`, :func:`linear_rollout`, :func:`tracking_rollout` -> trajectories
+- :func:`value_iteration`, :func:`policy_iteration`, :func:`evaluate`, :func:`occupancy`: finite
+  MDPs (batched), exact policy evaluation and discounted occupancy D_{μ,π}
 """
 
 from loopid.control.ilqr import ILQRSolution, Quadratization, ilqr, quadratize, trajectory_cost
 from loopid.control.lqr import LQRSolution, dlqr, dlqr_affine
 from loopid.control.rollout import Rollout, linear_rollout, rollout, tracking_rollout
 from loopid.control.tvlqr import TVLQRSolution, tvlqr
+from loopid.control.value_iteration import (
+    PIResult,
+    VIResult,
+    evaluate,
+    greedy,
+    occupancy,
+    policy_iteration,
+    q_values,
+    value_iteration,
+)
 
 __all__ = [
     "ILQRSolution",
     "LQRSolution",
+    "PIResult",
     "Quadratization",
     "Rollout",
     "TVLQRSolution",
+    "VIResult",
     "dlqr",
     "dlqr_affine",
+    "evaluate",
+    "greedy",
     "ilqr",
     "linear_rollout",
+    "occupancy",
+    "policy_iteration",
+    "q_values",
     "quadratize",
     "rollout",
     "tracking_rollout",
     "trajectory_cost",
     "tvlqr",
+    "value_iteration",
 ]

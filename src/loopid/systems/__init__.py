@@ -1,7 +1,10 @@
-"""The real systems: the 21-state helicopter (pure JAX), its tasks, and its Gymnasium envs."""
+"""The real systems: the 21-state helicopter (pure JAX), its tasks and Gymnasium envs, a
+linear-Gaussian test system, finite MDPs, and any Gymnasium environment (:class:`GymSystem`)."""
 
 from loopid.systems import helicopter, tasks
+from loopid.systems.base import Dynamics
 from loopid.systems.envs import HelicopterEnv
+from loopid.systems.gym import GymSystem, QuadraticCost, quadratic_cost
 from loopid.systems.helicopter import (
     from_error,
     funnel_target,
@@ -15,6 +18,8 @@ from loopid.systems.helicopter import (
     target_increment,
     to_error,
 )
+from loopid.systems.linear import linear_dynamics, linear_task
+from loopid.systems.mdp import FiniteMDP, check_mdp, gridworld, make_mdp, random_mdp, trap_mdp
 from loopid.systems.tasks import (
     FUNNEL_WEIGHTS,
     HOVER_WEIGHTS,
@@ -29,17 +34,28 @@ __all__ = [
     "FUNNEL_WEIGHTS",
     "HOVER_WEIGHTS",
     "TASK_NAMES",
+    "Dynamics",
+    "FiniteMDP",
+    "GymSystem",
     "HelicopterEnv",
+    "QuadraticCost",
     "Task",
+    "check_mdp",
     "cost_matrices",
     "from_error",
     "funnel_target",
+    "gridworld",
     "helicopter",
     "hover_target",
     "hover_trim",
+    "linear_dynamics",
+    "linear_task",
     "linearize",
+    "make_mdp",
     "make_task",
     "noise_sequence",
+    "quadratic_cost",
+    "random_mdp",
     "rollout",
     "step",
     "step_delayed",
@@ -47,4 +63,5 @@ __all__ = [
     "tasks",
     "to_error",
     "trajectory_cost",
+    "trap_mdp",
 ]
