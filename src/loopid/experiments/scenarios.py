@@ -1,13 +1,19 @@
 """Experiment scenarios: every protocol setting of SPEC §4.4, with SPEC's values as defaults.
 
 A :class:`Scenario` is one frozen record; every *(choice)* of the SPEC is a field, and the whole
-record is written into each run directory's ``config.toml``. ``SCENARIOS`` holds the paper's
-three panels; :func:`scenario` returns one with fields overridden and validated.
+record is written into each run directory's ``config.toml``. The paper's three panels are TOML
+files shipped in the package (``experiments/scenarios/{hover,hover-delay,funnel}.toml``, every
+field spelled out); ``SCENARIOS`` holds them, :func:`scenario` returns one with fields overridden
+and validated, and :func:`read_config` reads and validates a user's ``--config`` TOML.
 """
 
 import dataclasses
 import math
+import re
+import tomllib
 from dataclasses import dataclass
+from importlib import resources
+from pathlib import Path
 
 from loopid.algorithms.collect import SAMPLING_MODES
 from loopid.algorithms.loop import TEST_POLICIES
@@ -81,6 +87,9 @@ class Scenario:
         return {k: v for k, v in dataclasses.asdict(self).items() if v is not None}
 
 
+_NAME = re.compile(r"[a-z0-9][a-z0-9-]*")
+
+
 def _positive_int(name: str, v, minimum: int = 1) -> None:
     if isinstance(v, bool) or not isinstance(v, int) or v < minimum:
         raise ValueError(f"{name} must be an integer >= {minimum}, got {v!r}")
@@ -96,7 +105,11 @@ def _number(name: str, v, low: float, high: float = math.inf, *, open_low=False)
 
 def validate(s: Scenario) -> None:
     """Raise ``ValueError`` naming the first bad field of ``s`` and what is allowed."""
-    if s.task not in TASK_NAMES:
+    if not isinstance(s.name, str) or not _NAME.fullmatch(s.name):
+        raise ValueError(
+            f"name must be lower-case letters, digits and '-' (a file name), got {s.name!r}"
+        )
+    if not isinstance(s.task, str) or s.task not in TASK_NAMES:
         raise ValueError(f"task must be one of {', '.join(TASK_NAMES)}, got {s.task!r}")
     _positive_int("iterations", s.iterations)
     _positive_int("samples", s.samples)
@@ -107,6 +120,8 @@ def validate(s: Scenario) -> None:
         _number("noise_std", s.noise_std, 0.0)
     if s.delay is not None:
         _positive_int("delay", s.delay, minimum=0)
+    if not isinstance(s.pads, bool):
+        raise ValueError(f"pads must be true or false, got {s.pads!r}")
     if s.sampling not in SAMPLING_MODES:
         raise ValueError(f"sampling must be one of {', '.join(SAMPLING_MODES)}, got {s.sampling!r}")
     if s.test_policy not in TEST_POLICIES:
@@ -125,15 +140,76 @@ def validate(s: Scenario) -> None:
     _number("pg_step", s.pg_step, 0.0, open_low=True)
 
 
-SCENARIOS: dict[str, Scenario] = {
-    "hover": Scenario("hover", "hover", iterations=50, samples=100),
-    "hover-delay": Scenario("hover-delay", "hover-delay", iterations=100, samples=100),
-    "funnel": Scenario("funnel", "funnel", iterations=100, samples=500),
-}
+FIELDS: tuple[str, ...] = tuple(f.name for f in dataclasses.fields(Scenario))
 
 
-def scenario(name: str, **overrides) -> Scenario:
-    """The named scenario of :data:`SCENARIOS` with ``overrides`` (validated)."""
-    if name not in SCENARIOS:
-        raise ValueError(f"unknown scenario {name!r}; choose from {', '.join(SCENARIOS)}")
-    return SCENARIOS[name].replace(**overrides)
+def from_dict(d: dict, *, where: str = "scenario") -> Scenario:
+    """A :class:`Scenario` from a dict of fields; unknown or missing keys raise ``ValueError``."""
+    unknown = sorted(set(d) - set(FIELDS))
+    if unknown:
+        raise ValueError(
+            f"{where}: unknown key(s) {', '.join(unknown)}; allowed: {', '.join(FIELDS)}"
+        )
+    missing = [k for k in ("name", "task", "iterations", "samples") if k not in d]
+    if missing:
+        raise ValueError(f"{where}: missing key(s) {', '.join(missing)}")
+    try:
+        return Scenario(**d)
+    except ValueError as e:
+        raise ValueError(f"{where}: {e}") from None
+
+
+def _load_packaged() -> dict[str, Scenario]:
+    folder = resources.files("loopid.experiments") / "scenarios"
+    out = {}
+    for name in ("hover", "hover-delay", "funnel"):  # the paper's panel order
+        text = (folder / f"{name}.toml").read_text(encoding="utf-8")
+        out[name] = from_dict(tomllib.loads(text), where=f"scenarios/{name}.toml")
+    return out
+
+
+#: The paper's three panels, from the TOML files shipped in the package.
+SCENARIOS: dict[str, Scenario] = _load_packaged()
+
+
+def scenario(base: str, /, **overrides) -> Scenario:
+    """The scenario ``base`` of :data:`SCENARIOS` with ``overrides`` (validated; ``name`` may be
+    overridden too, e.g. for a variant of a panel)."""
+    if base not in SCENARIOS:
+        raise ValueError(f"unknown scenario {base!r}; choose from {', '.join(SCENARIOS)}")
+    return SCENARIOS[base].replace(**overrides)
+
+
+#: Keys a ``--config`` file may hold besides the scenario fields.
+RUN_KEYS = ("methods",)
+
+
+def read_config(path) -> dict:
+    """Read a user's ``--config`` TOML: flat keys, each a :class:`Scenario` field or ``methods``
+    (a list of method names). Returns the dict; raises ``ValueError`` with one line naming an
+    unreadable file, a TOML error, an unknown key or a value of the wrong kind (the values
+    themselves are validated when the scenario is built)."""
+    path = Path(path)
+    try:
+        text = path.read_text(encoding="utf-8")
+    except OSError as e:
+        raise ValueError(f"--config {str(path)!r}: cannot read it ({e.strerror})") from None
+    try:
+        cfg = tomllib.loads(text)
+    except tomllib.TOMLDecodeError as e:
+        raise ValueError(f"--config {str(path)!r}: not valid TOML ({e})") from None
+    allowed = (*FIELDS, *RUN_KEYS)
+    unknown = sorted(set(cfg) - set(allowed))
+    if unknown:
+        raise ValueError(
+            f"--config {str(path)!r}: unknown key(s) {', '.join(unknown)}; "
+            f"allowed: {', '.join(allowed)}"
+        )
+    methods = cfg.get("methods")
+    if methods is not None and (
+        not isinstance(methods, list) or not all(isinstance(m, str) for m in methods)
+    ):
+        raise ValueError(
+            f"--config {str(path)!r}: methods must be a list of names, got {methods!r}"
+        )
+    return cfg
