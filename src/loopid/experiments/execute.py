@@ -1,13 +1,23 @@
-"""Running a set of cells (scenario × method) into a run directory, with progress and resume."""
+"""Running a set of cells (scenario × method) into a run directory, with progress and resume.
+
+:func:`run_cells` checks everything, prepares the run directory (refusing one made with another
+configuration), then hands the unfinished cells to an executor
+(:mod:`loopid.experiments.executors`) and saves each cell the moment it finishes (atomically),
+rewriting ``results.parquet`` in the fixed scenario × method order. Rerunning the same call
+skips the finished cells and ends with the same table, row for row.
+"""
 
 import time
 from collections.abc import Callable, Sequence
 
 import numpy as np
+import pyarrow as pa
 
 import loopid
 from loopid.algorithms.loop import Row
-from loopid.experiments.results import trace_table
+from loopid.algorithms.methods import check_method
+from loopid.experiments.executors import Job, check_executor, executor
+from loopid.experiments.results import trace_table, with_metadata
 from loopid.experiments.rundir import RunDir
 from loopid.experiments.runner import run
 from loopid.experiments.scenarios import Scenario
@@ -28,40 +38,91 @@ def resolved_config(scenarios: Sequence[Scenario], methods: Sequence[str], seeds
     }
 
 
+def run_cell(
+    s: Scenario, method: str, seeds, progress: Callable[[int, Row], None] | None = None
+) -> pa.Table:
+    """One cell's rows (:func:`loopid.experiments.results.trace_table`), with its timings in the
+    table's metadata: ``wall_s`` (the whole cell) and ``first_s`` (until iteration 2 was done:
+    compilation plus two iterations)."""
+    t0 = time.perf_counter()
+    first = [None]
+
+    def tick(n: int, row: Row) -> None:
+        if n == min(2, s.iterations):
+            first[0] = time.perf_counter() - t0
+        if progress is not None:
+            progress(n, row)
+
+    trace = run(method, s, seeds, progress=tick)
+    wall = time.perf_counter() - t0
+    table = trace_table(s.name, method, trace)
+    return with_metadata(table, wall_s=f"{wall:.3f}", first_s=f"{first[0] or wall:.3f}")
+
+
+def check_cells(scenarios: Sequence[Scenario], methods: Sequence[str], seeds) -> np.ndarray:
+    """Validate a run's cells before anything is written; return the seeds as an array."""
+    if not scenarios:
+        raise ValueError("no scenarios to run")
+    names = [s.name for s in scenarios]
+    if len(set(names)) != len(names):
+        raise ValueError(f"scenario names must differ, got {names}")
+    if not methods:
+        raise ValueError("no methods to run")
+    if len(set(methods)) != len(methods):
+        raise ValueError(f"methods must differ, got {list(methods)}")
+    for m in methods:
+        check_method(m)
+    seeds = np.arange(scenarios[0].seeds) if seeds is None else np.asarray(seeds)
+    if seeds.ndim != 1 or seeds.size == 0 or not np.issubdtype(seeds.dtype, np.integer):
+        raise ValueError(f"seeds must be a non-empty list of integers, got {seeds.tolist()!r}")
+    if (seeds < 0).any():
+        raise ValueError(f"seeds must be >= 0, got {seeds.tolist()}")
+    return seeds
+
+
 def run_cells(
     out,
     scenarios: Sequence[Scenario],
     methods: Sequence[str],
     seeds=None,
     *,
+    executor_name: str = "local",
+    ray_address: str | None = None,
+    threads: int = 1,
     on_cell: ProgressFactory | None = None,
     log: Callable[[str], None] | None = None,
-):
+) -> pa.Table:
     """Run every (scenario, method) cell not yet finished in ``out``; return the full table.
 
     ``seeds`` defaults to ``range(scenario.seeds)`` of the first scenario (all scenarios of one
-    run share the seeds). Each finished cell is saved at once (atomically); ``results.parquet``
-    is rewritten after every cell.
+    run share the seeds). ``executor_name``: ``local`` or ``ray`` (``ray_address`` joins a
+    cluster); ``threads``: how many groups of cells the local executor runs at once. Each
+    finished cell is saved at once (atomically); ``results.parquet`` is
+    rewritten after every cell.
     """
-    if seeds is None:
-        seeds = np.arange(scenarios[0].seeds)
-    seeds = np.asarray(seeds)
+    seeds = check_cells(scenarios, methods, seeds)
+    check_executor(executor_name, ray_address)
     rd = RunDir(out)
     rd.prepare(resolved_config(scenarios, methods, seeds))
     order = [(s.name, m) for s in scenarios for m in methods]
+    jobs = []
     for s in scenarios:
         for m in methods:
             if rd.done(s.name, m):
                 if log:
                     log(f"{s.name} / {m}: already finished, skipped")
-                continue
-            t0 = time.perf_counter()
-            cb = on_cell(s.name, m, s.iterations) if on_cell else None
-            trace = run(m, s, seeds, progress=cb)
-            rd.save_cell(s.name, m, trace_table(s.name, m, trace))
-            rd.write_results(order)
-            if log:
-                final = np.median(trace.rows.test_cost[:, -1])
-                secs = time.perf_counter() - t0
-                log(f"{s.name} / {m}: {secs:.1f} s, final median cost {final:.4g}")
+            else:
+                jobs.append(Job(s, m))
+    options = {"address": ray_address} if executor_name == "ray" else {"threads": threads}
+    for job, table in executor(executor_name)(jobs, seeds, run_cell, on_cell=on_cell, **options):
+        rd.save_cell(job.scenario.name, job.method, table)
+        rd.write_results(order)
+        if log:
+            meta = rd.cell_metadata(job.scenario.name, job.method)
+            last = np.asarray(table.column("iteration")) == job.scenario.iterations
+            final = np.median(np.asarray(table.column("test_cost"))[last])
+            log(
+                f"{job.scenario.name} / {job.method}: {float(meta['wall_s']):.1f} s, "
+                f"final median cost {final:.4g}"
+            )
     return rd.write_results(order)

@@ -73,19 +73,58 @@ def write_atomic(table: pa.Table, path: Path) -> None:
     os.replace(tmp, path)
 
 
+def write_atomic_bytes(data: bytes, path: Path) -> None:
+    """Write ``data`` to ``path`` through a temporary file in the same folder and a rename."""
+    path = Path(path)
+    tmp = path.with_name(f".{path.name}.tmp-{os.getpid()}")
+    tmp.write_bytes(data)
+    os.replace(tmp, path)
+
+
 def read_table(path: Path) -> pa.Table:
-    """Read a results table (one file, or a folder of cell files): the loopid columns first,
-    then any extra diagnostics columns (null where a cell does not have them)."""
+    """Read a results table (one file, or a folder of cell files, concatenated in name order).
+
+    The :data:`SCHEMA` columns come first with their types, then any extra (float64) diagnostic
+    columns; cells without an extra column get nulls there. File metadata is dropped. A file
+    without one of the :data:`SCHEMA` columns raises ``ValueError`` naming it.
+    """
     path = Path(path)
     if path.is_dir():
         files = sorted(p for p in path.glob("*.parquet") if not p.name.startswith("."))
-    else:
-        files = [path]
-    if not files:
+        if not files:
+            return SCHEMA.empty_table()
+        return concat([read_table(f) for f in files])
+    table = pq.read_table(path)
+    missing = [name for name in SCHEMA.names if name not in table.column_names]
+    if missing:
+        raise ValueError(f"{path} is not a loopid results table: no column(s) {', '.join(missing)}")
+    extra = [name for name in table.column_names if name not in SCHEMA.names]
+    schema = SCHEMA
+    for name in extra:
+        schema = schema.append(pa.field(name, pa.float64()))
+    return table.select([*SCHEMA.names, *extra]).replace_schema_metadata(None).cast(schema)
+
+
+def concat(tables: list[pa.Table]) -> pa.Table:
+    """Concatenate result tables row-wise; extra columns missing from a table become nulls."""
+    if not tables:
         return SCHEMA.empty_table()
-    tables = [pq.read_table(f) for f in files]
-    for f, t in zip(files, tables, strict=True):
-        missing = [name for name in SCHEMA.names if name not in t.column_names]
-        if missing:
-            raise ValueError(f"{f} is not a loopid results table: no column(s) {missing}")
+    tables = [t.replace_schema_metadata(None) for t in tables]
     return pa.concat_tables(tables, promote_options="default")
+
+
+def with_metadata(table: pa.Table, **values: float | str) -> pa.Table:
+    """``table`` with ``values`` in its schema metadata (``loopid.NAME``), e.g. a cell's timings."""
+    meta = dict(table.schema.metadata or {})
+    meta.update({f"loopid.{k}".encode(): str(v).encode() for k, v in values.items()})
+    return table.replace_schema_metadata(meta)
+
+
+def metadata(path: Path) -> dict[str, str]:
+    """The ``loopid.*`` schema metadata of a Parquet file, without the prefix."""
+    meta = pq.read_schema(path).metadata or {}
+    return {
+        k.decode()[len("loopid.") :]: v.decode()
+        for k, v in meta.items()
+        if k.startswith(b"loopid.")
+    }

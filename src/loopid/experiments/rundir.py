@@ -3,8 +3,11 @@
 Layout of ``DIR``::
 
     config.toml           the resolved configuration (scenarios, methods, seeds, version)
-    cells/S__M.parquet    one file per finished cell (scenario S × method M), written atomically
+    cells/S__M.parquet    one file per finished cell (scenario S × method M), written atomically;
+                          its metadata holds the cell's wall time
     results.parquet       all finished cells, in a fixed order (rewritten after every cell)
+    figure.png, report.md drawn from results.parquet (:mod:`loopid.experiments.plots`,
+                          :mod:`loopid.experiments.report`)
 
 A cell file exists only once its cell has finished, so a killed run loses nothing finished, and
 rerunning the same command skips the finished cells. A directory whose ``config.toml`` differs
@@ -17,7 +20,7 @@ from pathlib import Path
 
 import pyarrow as pa
 
-from loopid.experiments.results import SCHEMA, read_table, write_atomic
+from loopid.experiments.results import concat, metadata, read_table, write_atomic
 
 
 def _toml_value(v) -> str:
@@ -90,7 +93,10 @@ class RunDir:
 
     def write_results(self, order: list[tuple[str, str]]) -> pa.Table:
         """Concatenate the finished cells in ``order`` into ``results.parquet``; return it."""
-        tables = [read_table(self.cell_file(s, m)) for s, m in order if self.done(s, m)]
-        table = pa.concat_tables(tables) if tables else SCHEMA.empty_table()
+        table = concat([read_table(self.cell_file(s, m)) for s, m in order if self.done(s, m)])
         write_atomic(table, self.path / "results.parquet")
         return table
+
+    def cell_metadata(self, scenario: str, method: str) -> dict[str, str]:
+        """What a finished cell recorded besides its rows (``wall_s``, ``first_s``: seconds)."""
+        return metadata(self.cell_file(scenario, method))

@@ -1,0 +1,205 @@
+"""Executors: where the cells of a run are computed. The same seeds give the same table on any.
+
+- ``local`` (default): in this process, JAX's persistent compilation cache on
+  (:func:`compile_cache`). Cells that share a compiled program (DAgger, Batch and Abbeel with
+  the same scenario and ν) form a group that runs in order and compiles once; with
+  ``threads > 1`` the groups run on that many threads at once. Compilation (XLA, C++) and
+  execution release the GIL, so two threads on two cores compile two programs at once, and a
+  small run, where compilation dominates, takes about half the time.
+- ``ray`` (extra ``[ray]``): each cell is one Ray task (``num_cpus=1``) calling the same cell
+  function; ``address`` joins an existing cluster, otherwise a local Ray is started with the
+  machine's CPUs and shut down afterwards. Workers use the same compilation cache folder.
+
+An executor is a generator: ``executor(jobs, seeds, cell, on_cell=..., **options)`` yields
+``(job, table)`` as cells finish (in any order); the caller saves each at once.
+"""
+
+import os
+import queue
+import threading
+from collections.abc import Callable, Iterator, Sequence
+from pathlib import Path
+from typing import NamedTuple
+
+import pyarrow as pa
+
+from loopid.experiments.scenarios import Scenario
+
+EXECUTORS = ("local", "ray")
+
+
+class Job(NamedTuple):
+    """One cell: a scenario and a method."""
+
+    scenario: Scenario
+    method: str
+
+
+#: ``cell(scenario, method, seeds, progress=None) -> table`` (see :func:`execute.run_cell`).
+CellFunction = Callable[..., pa.Table]
+
+
+def compile_cache(path: str | os.PathLike | None = None) -> str:
+    """Turn on JAX's persistent compilation cache in this process; return its folder.
+
+    ``path`` defaults to ``$LOOPID_JAX_CACHE``, else ``~/.cache/loopid/jax``. Every program that
+    takes at least 0.5 s to compile is stored (the cells' programs take 5-60 s; the many tiny
+    eager operations are not worth a disk entry), so a second run of the same cells, in any
+    process, skips most compilation.
+    """
+    import jax
+
+    if path is None:
+        path = os.environ.get("LOOPID_JAX_CACHE", str(Path.home() / ".cache" / "loopid" / "jax"))
+    path = str(path)
+    jax.config.update("jax_compilation_cache_dir", path)
+    jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.5)
+    return path
+
+
+def check_executor(name: str, address: str | None = None) -> None:
+    """Raise ``ValueError`` (before anything is written) for an unknown executor, an address
+    without Ray, or Ray missing."""
+    if name not in EXECUTORS:
+        raise ValueError(f"unknown executor {name!r}; choose from {', '.join(EXECUTORS)}")
+    if address is not None and name != "ray":
+        raise ValueError(f"--ray-address {address!r} needs --executor ray")
+    if name == "ray":
+        try:
+            import ray  # noqa: F401
+        except ImportError:
+            raise ValueError("--executor ray needs Ray: pip install 'loopid[ray]'") from None
+
+
+def groups(jobs: Sequence[Job]) -> list[list[Job]]:
+    """The jobs grouped by the compiled program they share (scenario and ν for DAgger, Batch and
+    Abbeel; one group per cell otherwise), each group in the jobs' order."""
+    from loopid.algorithms.methods import nu_kind
+
+    out: dict[tuple, list[Job]] = {}
+    for job in jobs:
+        kind = nu_kind(job.method)
+        key = (job.scenario.name, kind) if kind is not None else (job.scenario.name, job.method)
+        out.setdefault(key, []).append(job)
+    return list(out.values())
+
+
+def run_local(
+    jobs: Sequence[Job],
+    seeds,
+    cell: CellFunction,
+    *,
+    on_cell: Callable | None = None,
+    threads: int = 1,
+) -> Iterator[tuple[Job, pa.Table]]:
+    """Compute the cells in this process; ``on_cell(scenario, method, iterations)`` returns a
+    per-iteration progress callback (or None).
+
+    ``threads == 1``: one cell after another, in order. ``threads > 1``: the :func:`groups` run
+    on that many daemon threads (a group's cells in order); cells are yielded as they finish,
+    and the first error is raised once the cells already running have stopped being waited for.
+    """
+    if threads < 1:
+        raise ValueError(f"threads must be >= 1, got {threads!r}")
+
+    def compute(job: Job) -> pa.Table:
+        s = job.scenario
+        progress = on_cell(s.name, job.method, s.iterations) if on_cell else None
+        return cell(s, job.method, seeds, progress=progress)
+
+    if threads == 1 or len(jobs) <= 1:
+        for job in jobs:
+            yield job, compute(job)
+        return
+    todo: queue.Queue = queue.Queue()
+    for group in groups(jobs):
+        todo.put(group)
+    done: queue.Queue = queue.Queue()
+    stop = threading.Event()
+
+    def worker() -> None:
+        while not stop.is_set():
+            try:
+                group = todo.get_nowait()
+            except queue.Empty:
+                return
+            for job in group:
+                if stop.is_set():
+                    return
+                try:
+                    done.put((job, compute(job), None))
+                except BaseException as e:  # handed to the main thread
+                    done.put((job, None, e))
+                    return
+
+    for _ in range(min(threads, todo.qsize())):
+        threading.Thread(target=worker, daemon=True).start()
+    try:
+        for _ in range(len(jobs)):
+            while True:
+                try:
+                    job, table, error = done.get(timeout=0.2)
+                    break
+                except queue.Empty:
+                    continue
+            if error is not None:
+                raise error
+            yield job, table
+    finally:
+        stop.set()
+
+
+def _ray_cell(s: Scenario, method: str, seeds, cache_dir: str) -> pa.Table:
+    """The body of one Ray task (runs in a worker process)."""
+    import loopid  # noqa: F401  (float64 on)
+    from loopid.experiments import execute
+
+    compile_cache(cache_dir)
+    return execute.run_cell(s, method, seeds)
+
+
+def run_ray(
+    jobs: Sequence[Job],
+    seeds,
+    cell: CellFunction | None = None,
+    *,
+    on_cell: Callable | None = None,
+    address: str | None = None,
+    num_cpus: int | None = None,
+) -> Iterator[tuple[Job, pa.Table]]:
+    """Compute each cell as a Ray task; yield them as they finish.
+
+    ``address``: an existing cluster (``ray.init(address=...)``); otherwise a local Ray with
+    ``num_cpus`` (default: the machine's CPUs), shut down when the generator ends. ``cell`` and
+    ``on_cell`` are accepted for the common signature; workers run :func:`execute.run_cell`
+    (the driver sees a cell when it is finished).
+    """
+    import ray
+
+    started = False
+    if not ray.is_initialized():
+        options = dict(include_dashboard=False, log_to_driver=False, configure_logging=False)
+        if address is not None:
+            ray.init(address=address, **options)
+        else:
+            ray.init(num_cpus=num_cpus or os.cpu_count() or 1, **options)
+        started = True
+    try:
+        import jax
+
+        task = ray.remote(num_cpus=1, max_retries=0)(_ray_cell)
+        cache_dir = jax.config.jax_compilation_cache_dir or compile_cache()
+        pending = {task.remote(job.scenario, job.method, seeds, cache_dir): job for job in jobs}
+        while pending:
+            done, _ = ray.wait(list(pending), num_returns=1)
+            job = pending.pop(done[0])
+            yield job, ray.get(done[0])
+    finally:
+        if started:
+            ray.shutdown()
+
+
+def executor(name: str) -> Callable[..., Iterator[tuple[Job, pa.Table]]]:
+    """The executor called ``name`` (:data:`EXECUTORS`)."""
+    check_executor(name)
+    return {"local": run_local, "ray": run_ray}[name]
