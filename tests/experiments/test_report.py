@@ -1,0 +1,145 @@
+"""report.md and figure.png from synthetic tables: each finding's computation, the figure's
+curves, ``loopid plot`` from a table alone."""
+
+import numpy as np
+import pyarrow as pa
+import pyarrow.parquet as pq
+import pytest
+
+from loopid.experiments import plots, report
+from loopid.experiments.results import SCHEMA, read_table
+
+PANELS = ("hover", "hover-delay", "funnel")
+
+
+def table_of(costs: dict[tuple[str, str], np.ndarray], samples: int = 100) -> pa.Table:
+    """A results table from ``{(scenario, method): test_cost [seeds, iterations]}``."""
+    cols = {f.name: [] for f in SCHEMA}
+    for (s, m), c in costs.items():
+        S, N = c.shape
+        for seed in range(S):
+            for n in range(N):
+                row = dict.fromkeys(cols, 0)
+                row.update(scenario=s, method=m, seed=seed, iteration=n + 1,
+                           samples=n * samples, test_cost=float(c[seed, n]),
+                           test_cost_median=float(c[seed, n]), diverged=int(c[seed, n] >= 1e8),
+                           loss_nu=0.0, loss_policy=0.0, online_loss=0.0,
+                           spectral_radius=0.5, solver_converged=True)  # fmt: skip
+                for k, v in row.items():
+                    cols[k].append(v)
+    return pa.table({f.name: pa.array(cols[f.name], type=f.type) for f in SCHEMA}, schema=SCHEMA)
+
+
+def curve(first: float, last: float, seeds: int = 5, n: int = 6, spread: float = 0.01):
+    """``[seeds, n]`` costs falling geometrically from ``first`` to ``last``, seeds spread."""
+    base = np.geomspace(first, last, n)
+    return base[None, :] * (1 + spread * np.arange(seeds))[:, None]
+
+
+def paper_like() -> dict:
+    """Every finding holds: DAgger ends below L (hover) and below Batch; one good Batch; Abbeel
+    improves from iteration 2 then sits above DAgger; PG stays far from L."""
+    costs = {}
+    for s in PANELS:
+        L = 50.0
+        costs[(s, "expert")] = curve(L, L)
+        for nu in ("t", "e", "en"):
+            costs[(s, f"dagger-{nu}")] = curve(2.6e6, 45.0 if s != "funnel" else 55.0)
+        costs[(s, "batch-t")] = curve(2.6e6, 1e7)
+        costs[(s, "batch-e")] = curve(2.6e6, 1.5e4)
+        costs[(s, "batch-en")] = curve(2.6e6, 60.0)
+        a = curve(2.6e6, 120.0)
+        a[:, 1] = 1e6  # iteration 2: the first policy fitted to the expert's data
+        costs[(s, "abbeel")] = a
+        costs[(s, "pg")] = curve(2.6e6, 1.5e6)
+    return costs
+
+
+def verdicts(costs) -> list[str]:
+    return [f.verdict for f in report.findings(table_of(costs))]
+
+
+def test_every_finding_holds_on_a_paper_like_table():
+    found = report.findings(table_of(paper_like()))
+    assert [f.number for f in found] == [1, 2, 3, 4, 5]
+    assert [f.verdict for f in found] == ["holds"] * 5
+    assert [f.mean_verdict for f in found] == ["holds"] * 5
+
+
+@pytest.mark.parametrize(
+    ("change", "broken"),
+    [
+        # finding 1: one ν in one panel where Batch ends below DAgger
+        ({("funnel", "batch-en"): curve(2.6e6, 40.0)}, {1}),
+        # finding 2: a second good Batch curve (and one DAgger curve never settles)
+        ({("hover", "batch-e"): curve(2.6e6, 70.0)}, {2}),
+        ({("hover-delay", "dagger-e"): curve(2.6e6, 1e8)}, {1, 2, 3}),
+        # finding 3: DAgger approaches L from above in hover (the funnel does not count)
+        ({("hover", "dagger-t"): curve(2.6e6, 52.0)}, {3}),
+        ({("funnel", "dagger-t"): curve(2.6e6, 80.0)}, set()),
+        # finding 4: Abbeel never improves on its first policy / ends below DAgger
+        ({("hover", "abbeel"): curve(2.6e6, 3e6)}, {4}),
+        ({("funnel", "abbeel"): curve(2.6e6, 20.0)}, {4}),
+        # finding 5: PG reaches good performance
+        ({("hover", "pg"): curve(2.6e6, 90.0)}, {5}),
+    ],
+)
+def test_each_finding_fails_when_its_claim_does(change, broken):
+    got = verdicts(paper_like() | change)
+    assert {i + 1 for i, v in enumerate(got) if v != "holds"} == broken
+
+
+def test_medians_and_means_judged_separately():
+    """Finding 1 on one ν: DAgger's median is lower but one diverging seed drags its mean above
+    Batch's: holds on medians, not on means, and the detail line says so."""
+    costs = paper_like()
+    d = curve(2.6e6, 45.0)
+    d[0, -1] = 1e8  # one seed diverges (capped)
+    costs[("hover", "dagger-t")] = d
+    costs[("hover", "batch-t")] = curve(2.6e6, 1e6)
+    f1 = report.findings(table_of(costs))[0]
+    assert (f1.verdict, f1.mean_verdict) == ("holds", "does not hold")
+    assert any("hover ν_t" in line and "on means" in line for line in f1.details)
+
+
+def test_missing_methods_are_not_measured():
+    costs = {k: v for k, v in paper_like().items() if k[1] in ("expert", "dagger-t")}
+    assert verdicts(costs) == ["not measured", "not measured", "holds", "not measured",
+                               "not measured"]  # fmt: skip
+
+
+def test_curves_are_means_and_standard_errors_over_seeds():
+    rng = np.random.default_rng(0)
+    c = rng.uniform(1.0, 100.0, (7, 5))
+    table = table_of({("hover", "dagger-t"): c}, samples=30)
+    x, mean, se = plots.curves(table, "hover", "dagger-t")
+    np.testing.assert_array_equal(x, [0, 30, 60, 90, 120])
+    np.testing.assert_allclose(mean, c.mean(axis=0), rtol=1e-14)
+    np.testing.assert_allclose(se, c.std(axis=0, ddof=1) / np.sqrt(7), rtol=1e-12)
+
+
+def test_plot_and_report_from_a_saved_table_alone(tmp_path, monkeypatch, capsys):
+    import loopid.experiments.executors as executors
+    from loopid.cli import main
+
+    monkeypatch.setattr(executors, "compile_cache", lambda path=None: "")
+    table = table_of(paper_like())
+    pq.write_table(table, tmp_path / "results.parquet")
+    with pytest.raises(SystemExit) as e:
+        main(["plot", str(tmp_path)])
+    assert e.value.code == 0
+    png = (tmp_path / "figure.png").read_bytes()
+    assert png[:8] == b"\x89PNG\r\n\x1a\n"
+    text = (tmp_path / "report.md").read_text()
+    assert text.count("— **holds**") == 5 and "no `config.toml`" in text
+    assert read_table(tmp_path / "results.parquet").equals(table)  # the table is untouched
+    # a table with more panels (say, later scenarios) gets one panel each
+    more = table_of(paper_like() | {("mdp-trap", "dagger-t"): curve(10.0, 1.0)})
+    plots.figure(more, tmp_path / "more.png")
+    assert (tmp_path / "more.png").stat().st_size > 0
+
+
+def test_final_cost_table_in_the_report():
+    text = report.report_text(table_of(paper_like()), config_text="[run]\nseeds = [0]\n")
+    assert "### hover-delay" in text and "| batch-t | " in text
+    assert "```toml\n[run]\nseeds = [0]\n```" in text
