@@ -1,72 +1,209 @@
-"""The ``loopid`` command line, as a user runs it (subprocess): files, resume, one-line errors."""
+"""The ``loopid`` command line, as a user runs it: files, schema, resume, Ray, one-line errors.
+
+The slow tests share one JAX compilation cache (``cache``), so only the first compiles.
+"""
 
 import os
+import signal
 import subprocess
 import sys
+import time
+from pathlib import Path
 
 import numpy as np
 import pyarrow.parquet as pq
 import pytest
 
 import loopid
+from loopid.algorithms.methods import METHODS
+from loopid.cli import main
+from loopid.experiments.results import SCHEMA
+from loopid.experiments.scenarios import SCENARIOS
 
 
-def loopid_cli(*args, tmp_path):
-    env = dict(os.environ, LOOPID_JAX_CACHE=str(tmp_path / "jax-cache"))
-    return subprocess.run(
-        [sys.executable, "-m", "loopid", *args],
-        capture_output=True,
-        text=True,
-        env=env,
-        timeout=600,
-    )
+@pytest.fixture(scope="session")
+def cache(tmp_path_factory) -> Path:
+    return tmp_path_factory.mktemp("jax-cache")
+
+
+def cli(*args, cache: Path, **popen):
+    env = dict(os.environ, LOOPID_JAX_CACHE=str(cache))
+    command = [sys.executable, "-m", "loopid", *map(str, args)]
+    if popen:
+        return subprocess.Popen(command, env=env, **popen)
+    return subprocess.run(command, capture_output=True, text=True, env=env, timeout=900)
 
 
 def test_version(tmp_path):
-    r = loopid_cli("--version", tmp_path=tmp_path)
+    r = cli("--version", cache=tmp_path)
     assert r.returncode == 0
     assert r.stdout.strip() == f"loopid {loopid.__version__}"
 
 
-@pytest.mark.parametrize(
-    ("args", "needle"),
-    [
-        (["run", "nope"], "'nope'"),
-        (["run", "hover", "--methods", "dagger-t,foo"], "'foo'"),
-        (["run", "hover", "--seeds", "-1"], "-1"),
-        (["run", "hover", "--seeds", "abc"], "--seeds"),
-        (["run", "hover", "--iterations", "ten"], "--iterations"),
-        (["run", "hover", "--samples", "0"], "samples"),
-        (["reproduce", "--bogus"], "--bogus"),
-    ],
-)
-def test_bad_input_exits_2_with_one_line(args, needle, tmp_path):
+# ---- bad input: exit 2, one line naming the value, no traceback, nothing written --------------
+
+
+@pytest.fixture
+def no_cache(monkeypatch):
+    """Run ``main`` in this process without touching JAX's global compilation-cache setting."""
+    import loopid.experiments.executors as executors
+
+    monkeypatch.setattr(executors, "compile_cache", lambda path=None: "")
+
+
+def write(path: Path, text: str) -> Path:
+    path.write_text(text)
+    return path
+
+
+BAD = [
+    (["run", "nope"], "'nope'"),
+    (["run", "hover", "--methods", "dagger-t,foo"], "'foo'"),
+    (["run", "hover", "--seeds", "-1"], "-1"),
+    (["run", "hover", "--seeds", "abc"], "--seeds"),
+    (["run", "hover", "--iterations", "ten"], "--iterations"),
+    (["run", "hover", "--samples", "0"], "samples"),
+    (["run", "hover", "--executor", "dask"], "'dask'"),
+    (["run", "hover", "--ray-address", "auto"], "--ray-address"),
+    (["run", "hover", "--threads", "0"], "--threads"),
+    (["run", "hover", "--config", "{dir}/missing.toml"], "missing.toml"),
+    (["run", "hover", "--config", "{unknown}"], "iteratons"),
+    (["run", "hover", "--config", "{badvalue}"], "iterations"),
+    (["run", "hover", "--config", "{badtask}"], "task"),
+    (["run", "hover", "--config", "{badmethods}"], "methods"),
+    (["run", "hover", "--config", "{badmethod}"], "'dagger-x'"),
+    (["run", "hover", "--config", "{nottoml}"], "TOML"),
+    (["run", "gym"], "--config"),
+    (["run", "gym", "--config", "{unknown}", "--seeds", "3"], "--seeds"),
+    (["reproduce", "--bogus"], "--bogus"),
+    (["reproduce", "--seeds", "0"], "seeds"),
+    (["reproduce", "--executor", "spark"], "'spark'"),
+    (["plot", "{dir}"], "results.parquet"),
+]
+
+
+@pytest.mark.parametrize(("args", "needle"), BAD)
+def test_bad_input_exits_2_with_one_line(args, needle, tmp_path, no_cache, capsys):
+    files = {
+        "dir": tmp_path,
+        "unknown": write(tmp_path / "u.toml", "iteratons = 3\n"),
+        "badvalue": write(tmp_path / "v.toml", 'iterations = "ten"\n'),
+        "badtask": write(tmp_path / "t.toml", 'task = "loop-the-loop"\n'),
+        "badmethods": write(tmp_path / "m.toml", 'methods = "dagger-t"\n'),
+        "badmethod": write(tmp_path / "n.toml", 'methods = ["dagger-x"]\n'),
+        "nottoml": write(tmp_path / "x.toml", "iterations = = 3\n"),
+    }
+    before = sorted(p.name for p in tmp_path.iterdir())
     out = tmp_path / "out"
-    extra = ["--out", str(out)] if args[0] == "run" else []
-    r = loopid_cli(*args, *extra, tmp_path=tmp_path)
-    assert r.returncode == 2, r.stderr
-    lines = r.stderr.strip().splitlines()
-    assert len(lines) == 1, r.stderr
-    assert needle in lines[0] and "Traceback" not in r.stderr
-    assert not out.exists()
+    args = [a.format(**files) for a in args]
+    extra = ["--out", str(out)] if args[0] in ("run", "reproduce") else []
+    with pytest.raises(SystemExit) as e:
+        main([*args, *extra])
+    assert e.value.code == 2
+    err = capsys.readouterr().err
+    lines = err.strip().splitlines()
+    assert len(lines) == 1, err
+    assert lines[0].startswith("loopid: error:") and needle in lines[0], err
+    assert "Traceback" not in err
+    assert sorted(p.name for p in tmp_path.iterdir()) == before  # nothing written
+
+
+def test_bad_input_from_the_console_script(tmp_path):
+    """The same through a real process: one line on stderr, exit 2, no traceback."""
+    r = cli("run", "hover", "--seeds", "-1", "--out", tmp_path / "o", cache=tmp_path)
+    assert r.returncode == 2
+    assert r.stderr.strip().splitlines() == ["loopid: error: seeds must be an integer >= 1, got -1"]
+    assert not (tmp_path / "o").exists()
+
+
+# ---- end to end (slow) --------------------------------------------------------------------
+
+
+@pytest.fixture(scope="session")
+def quick(tmp_path_factory, cache) -> Path:
+    """``loopid reproduce --quick`` into a fresh directory (fills the shared cache)."""
+    out = tmp_path_factory.mktemp("quick") / "run"
+    r = cli("reproduce", "--quick", "--out", out, cache=cache)
+    assert r.returncode == 0, r.stderr
+    return out
 
 
 @pytest.mark.slow
-def test_run_writes_table_and_resumes(tmp_path):
-    out = tmp_path / "run"
-    args = ["run", "hover", "--methods", "dagger-t,expert", "--seeds", "2", "--iterations", "3",
-            "--test-trajectories", "5", "--out", str(out), "--quiet"]  # fmt: skip
-    r = loopid_cli(*args, tmp_path=tmp_path)
-    assert r.returncode == 0, r.stderr
-    assert (out / "config.toml").exists()
-    table = pq.read_table(out / "results.parquet")
-    assert table.num_rows == 2 * 2 * 3
+def test_reproduce_quick_writes_the_four_files(quick):
+    assert {p.name for p in quick.iterdir()} >= {
+        "config.toml",
+        "results.parquet",
+        "figure.png",
+        "report.md",
+    }
+    table = pq.read_table(quick / "results.parquet")
+    assert table.schema.names[: len(SCHEMA)] == SCHEMA.names
+    assert table.schema.remove_metadata().equals(SCHEMA) or all(
+        table.schema.field(f.name).type == f.type for f in SCHEMA
+    )
     cols = table.to_pydict()
-    assert set(cols["method"]) == {"dagger-t", "expert"}
-    assert np.isfinite(cols["test_cost"]).all()
-    r = loopid_cli(*args, tmp_path=tmp_path)  # resume: every cell is finished, nothing reruns
-    assert r.returncode == 0 and pq.read_table(out / "results.parquet").equals(table)
+    cells = set(zip(cols["scenario"], cols["method"], strict=True))
+    assert cells == {(s, m) for s in SCENARIOS for m in METHODS}
+    # 2 seeds x 4 iterations per cell, each (cell, seed, iteration) once
+    keys = list(zip(cols["scenario"], cols["method"], cols["seed"], cols["iteration"], strict=True))
+    assert len(keys) == len(set(keys)) == len(cells) * 2 * 4
+    for f in SCHEMA:
+        if f.type == "double":
+            assert not np.isnan(np.asarray(cols[f.name], dtype=float)).any(), f.name
+    assert (quick / "figure.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    report = (quick / "report.md").read_text()
+    for n in range(1, 6):
+        assert f"\n{n}. **" in report
+    assert "Wall time" in report and "this command:" in report
+
+
+def _cell_mtimes(out: Path) -> dict[str, int]:
+    return {p.name: p.stat().st_mtime_ns for p in (out / "cells").glob("*.parquet")}
+
+
+@pytest.mark.slow
+def test_killed_run_resumes_to_the_same_table(tmp_path, cache, quick):
+    args = ["run", "hover", "--methods", "expert,batch-t,dagger-t", "--seeds", "2", "--threads",
+            "1", "--iterations", "4", "--test-trajectories", "10", "--quiet"]  # fmt: skip
+    whole = tmp_path / "whole"
+    r = cli(*args, "--out", whole, cache=cache)
+    assert r.returncode == 0, r.stderr
+    expected = pq.read_table(whole / "results.parquet")
+
+    killed = tmp_path / "killed"
+    p = cli(*args, "--out", killed, cache=cache, stderr=subprocess.DEVNULL)
+    deadline = time.monotonic() + 300
+    while not _cell_mtimes(killed) and p.poll() is None and time.monotonic() < deadline:
+        time.sleep(0.05)
+    p.send_signal(signal.SIGKILL)
+    p.wait()
+    first = _cell_mtimes(killed)
+    assert len(first) == 1  # killed after its first finished cell
+    assert not list(killed.glob("*.png"))
+
+    r = cli(*args, "--out", killed, cache=cache)
+    assert r.returncode == 0, r.stderr
+    assert "already finished, skipped" not in r.stderr  # --quiet
+    again = pq.read_table(killed / "results.parquet")
+    assert again.equals(expected)  # same rows, same order, no duplicates
+    name = next(iter(first))
+    assert _cell_mtimes(killed)[name] == first[name]  # the finished cell was not recomputed
+
     # a different configuration in the same directory is refused, and changes nothing
-    r = loopid_cli(*args[:-3], "--samples", "50", "--out", str(out), tmp_path=tmp_path)
+    r = cli(*args[:-1], "--samples", "50", "--out", killed, cache=cache)
     assert r.returncode == 2 and "different configuration" in r.stderr
-    assert pq.read_table(out / "results.parquet").equals(table)
+    assert pq.read_table(killed / "results.parquet").equals(expected)
+
+
+@pytest.mark.slow
+def test_ray_executor_gives_the_local_table(tmp_path, cache, quick):
+    pytest.importorskip("ray")
+    args = ["run", "hover", "--methods", "expert,batch-t", "--seeds", "2", "--iterations", "2",
+            "--test-trajectories", "10", "--quiet"]  # fmt: skip
+    r = cli(*args, "--out", tmp_path / "local", cache=cache)
+    assert r.returncode == 0, r.stderr
+    r = cli(*args, "--executor", "ray", "--out", tmp_path / "ray", cache=cache)
+    assert r.returncode == 0, r.stderr
+    local = pq.read_table(tmp_path / "local" / "results.parquet")
+    assert pq.read_table(tmp_path / "ray" / "results.parquet").equals(local)
+    assert (tmp_path / "ray" / "report.md").exists()

@@ -1,15 +1,24 @@
 """The ``loopid`` command line (typer).
 
+- ``loopid reproduce [--out DIR] [--seeds N] [--quick] [--quiet] [--executor local|ray]
+  [--ray-address ADDR]``: every panel of the paper's Figure 2 and every method, at protocol
+  scale (``--quick``: every panel and method at 2 seeds and 4 iterations, a smoke run).
 - ``loopid run SCENARIO [--methods a,b] [--seeds N] [--iterations N] [--samples N]
-  [--test-trajectories N] [--out DIR] [--quiet]``: one panel (or part of it) into a run directory.
-- ``loopid reproduce [--out DIR] [--seeds N] [--quick] [--quiet]``: every panel of the paper's
-  Figure 2 and every method, at protocol scale (``--quick``: 2 seeds, a few iterations).
+  [--test-trajectories N] [--config FILE] [--out DIR] [--quiet] [--executor local|ray]
+  [--ray-address ADDR]``: one panel (or part of it). ``--config`` is a TOML file of scenario
+  fields (and ``methods``); options given on the command line win over it.
+  ``loopid run gym --config FILE``: any Gymnasium environment
+  (:mod:`loopid.experiments.gym_config`).
+- ``loopid plot DIR``: remake ``figure.png`` and ``report.md`` from ``DIR/results.parquet``.
 - ``loopid --version``.
 
-Bad input exits with code 2 and one line naming the bad value; nothing is written then.
+A run directory holds ``config.toml``, ``results.parquet``, ``figure.png`` and ``report.md``
+(and ``cells/``, one file per finished cell: rerunning a command resumes it). Bad input exits
+with code 2 and one line naming the bad value; nothing is written then.
 """
 
 import sys
+import time
 from pathlib import Path
 
 import typer
@@ -20,7 +29,9 @@ app = typer.Typer(
     add_completion=False, no_args_is_help=True, help=__doc__, pretty_exceptions_enable=False
 )
 
-QUICK = {"iterations": 4, "test_trajectories": 10}
+#: ``--quick``: every panel and method, 2 seeds, 4 iterations, 10 test trajectories.
+QUICK = {"iterations": 4, "test_trajectories": 10, "seeds": 2}
+ALL_METHODS = "dagger-t,dagger-e,dagger-en,batch-t,batch-e,batch-en,abbeel,expert,pg"
 
 
 def _version(value: bool) -> None:
@@ -38,44 +49,69 @@ def _root(
     """loopid: closed-loop system identification and model-based control."""
 
 
-def _progress(quiet: bool):
-    """(on_cell, log) callbacks: a rich bar per cell on a terminal, one line per cell otherwise."""
-    if quiet:
-        return None, None
+class _Output:
+    """Progress and log lines for a run.
 
-    def log(line: str) -> None:
-        typer.echo(line, err=True)
+    On a terminal: one rich progress bar per running cell (iterations, elapsed, ETA; cells
+    running on several threads share one display) and a line per finished cell. Not a terminal
+    (CI logs): the lines only. ``--quiet``: nothing but errors.
+    """
 
-    if not sys.stderr.isatty():
-        return None, log
-    from rich.progress import (
-        BarColumn,
-        Progress,
-        TextColumn,
-        TimeElapsedColumn,
-        TimeRemainingColumn,
-    )
+    def __init__(self, quiet: bool):
+        self.quiet = quiet
+        self.bars = None
+        self.console = None
+        if not quiet and sys.stderr.isatty():
+            from rich.console import Console
 
-    def on_cell(scenario: str, method: str, iterations: int):
-        bar = Progress(
-            TextColumn(f"{scenario} / {method}"),
-            BarColumn(),
-            TextColumn("{task.completed}/{task.total}"),
-            TimeElapsedColumn(),
-            TimeRemainingColumn(),
-            transient=True,
-        )
-        task = bar.add_task("cell", total=iterations)
-        bar.start()
+            self.console = Console(stderr=True)
+
+    def log(self, line: str) -> None:
+        if self.quiet:
+            return
+        if self.console is not None:
+            self.console.print(line, markup=False, highlight=False)
+        else:
+            typer.echo(line, err=True)
+
+    def on_cell(self, scenario: str, method: str, iterations: int):
+        if self.console is None:
+            return None
+        if self.bars is None:
+            from rich.progress import (
+                BarColumn,
+                MofNCompleteColumn,
+                Progress,
+                TextColumn,
+                TimeElapsedColumn,
+                TimeRemainingColumn,
+            )
+
+            self.bars = Progress(
+                TextColumn("{task.description}"),
+                BarColumn(),
+                MofNCompleteColumn(),
+                TextColumn("iterations"),
+                TimeElapsedColumn(),
+                TimeRemainingColumn(),
+                console=self.console,
+                transient=True,
+            )
+            self.bars.start()
+        bars = self.bars
+        task = bars.add_task(f"{scenario} / {method}", total=iterations)
 
         def advance(n, row):
-            bar.update(task, completed=n)
+            bars.update(task, completed=n)
             if n >= iterations:
-                bar.stop()
+                bars.remove_task(task)
 
         return advance
 
-    return on_cell, log
+    def close(self) -> None:
+        if self.bars is not None:
+            self.bars.stop()
+            self.bars = None
 
 
 def _methods(text: str) -> list[str]:
@@ -89,77 +125,185 @@ def _methods(text: str) -> list[str]:
     return names
 
 
-def _execute(out: Path, scenarios, methods, quiet: bool) -> None:
+def _finish(out: Path, table, t0: float, output: _Output) -> None:
+    """Draw ``figure.png`` and write ``report.md`` from the table just written."""
+    from loopid.experiments.plots import figure
+    from loopid.experiments.report import write_report
+
+    figure(table, out / "figure.png")
+    write_report(out, table, command_s=time.perf_counter() - t0)
+    output.log(f"wrote {table.num_rows} rows, figure.png and report.md to {out}/")
+
+
+def _execute(out, scenarios, methods, *, quiet, executor, ray_address, threads, t0) -> None:
     from loopid.experiments.execute import run_cells
 
-    on_cell, log = _progress(quiet)
-    table = run_cells(out, scenarios, methods, on_cell=on_cell, log=log)
-    if not quiet:
-        typer.echo(f"wrote {table.num_rows} rows to {out / 'results.parquet'}", err=True)
+    output = _Output(quiet)
+    try:
+        table = run_cells(
+            out,
+            scenarios,
+            methods,
+            executor_name=executor,
+            ray_address=ray_address,
+            threads=_threads(threads),
+            on_cell=output.on_cell,
+            log=output.log,
+        )
+    finally:
+        output.close()
+    _finish(out, table, t0, output)
+
+
+def _threads(threads: int | None) -> int:
+    import os
+
+    if threads is None:
+        return max(1, min(os.cpu_count() or 1, 4))
+    if threads < 1:
+        raise ValueError(f"--threads must be >= 1, got {threads}")
+    return threads
+
+
+EXECUTOR = typer.Option("local", "--executor", help="local (in this process) or ray.")
+RAY_ADDRESS = typer.Option(
+    None, "--ray-address", help="Join this Ray cluster (default: start a local one)."
+)
+QUIET = typer.Option(False, "--quiet", help="No progress output (errors only).")
+THREADS = typer.Option(
+    None,
+    "--threads",
+    help="Local executor: groups of cells computed at once (default: the CPUs, at most 4).",
+)
 
 
 @app.command()
 def run(
-    scenario: str = typer.Argument(..., help="hover, hover-delay or funnel."),
+    scenario: str = typer.Argument(..., help="hover, hover-delay, funnel, or gym (--config)."),
     methods: str = typer.Option(
-        "dagger-t,dagger-e,dagger-en,batch-t,batch-e,batch-en,abbeel,expert,pg",
-        "--methods",
-        help="Comma-separated methods.",
+        None, "--methods", help=f"Comma-separated methods (default: all, {ALL_METHODS})."
     ),
     seeds: int = typer.Option(None, "--seeds", help="Number of seeds (default: the scenario's)."),
     iterations: int = typer.Option(None, "--iterations", help="Iterations N (default: SPEC's)."),
     samples: int = typer.Option(None, "--samples", help="Samples per iteration m."),
     test_trajectories: int = typer.Option(None, "--test-trajectories", help="Per evaluation."),
-    out: Path = typer.Option(Path("runs/run"), "--out", help="Run directory."),
-    quiet: bool = typer.Option(False, "--quiet", help="No progress output."),
+    config: Path = typer.Option(
+        None, "--config", help="TOML file of scenario fields (and methods) to override."
+    ),
+    out: Path = typer.Option(None, "--out", help="Run directory (default: runs/SCENARIO)."),
+    quiet: bool = QUIET,
+    executor: str = EXECUTOR,
+    ray_address: str = RAY_ADDRESS,
+    threads: int = THREADS,
 ) -> None:
-    """Run one scenario's methods on every seed; write config.toml and results.parquet."""
+    """Run one scenario's methods on every seed into a run directory."""
+    t0 = time.perf_counter()
+    out = Path("runs") / scenario if out is None else out
+    options = dict(
+        seeds=seeds, iterations=iterations, samples=samples, test_trajectories=test_trajectories
+    )
+    options = {k: v for k, v in options.items() if v is not None}
+    if scenario == "gym":
+        given = [f"--{k.replace('_', '-')}" for k in options] + (["--methods"] if methods else [])
+        given += ["--executor"] if executor != "local" or ray_address else []
+        given += ["--threads"] if threads is not None else []
+        if given:
+            raise ValueError(
+                f"loopid run gym takes its settings from --config; remove {', '.join(given)}"
+            )
+        if config is None:
+            raise ValueError("loopid run gym needs --config FILE (see examples/pendulum.toml)")
+        _run_gym(config, out, quiet)
+        return
+
+    from loopid.experiments.executors import check_executor
+    from loopid.experiments.scenarios import read_config
     from loopid.experiments.scenarios import scenario as make_scenario
 
-    overrides = {
-        k: v
-        for k, v in dict(
-            seeds=seeds, iterations=iterations, samples=samples, test_trajectories=test_trajectories
-        ).items()
-        if v is not None
-    }
-    s = make_scenario(scenario, **overrides)
-    _execute(out, [s], _methods(methods), quiet)
+    check_executor(executor, ray_address)
+    fields = read_config(config) if config is not None else {}
+    chosen = fields.pop("methods", None)
+    if methods is not None:
+        chosen = _methods(methods)
+    elif chosen is not None:
+        chosen = _methods(",".join(chosen))
+    else:
+        chosen = _methods(ALL_METHODS)
+    s = make_scenario(scenario, **(fields | options))
+    _execute(
+        out,
+        [s],
+        chosen,
+        quiet=quiet,
+        executor=executor,
+        ray_address=ray_address,
+        threads=threads,
+        t0=t0,
+    )
+
+
+def _run_gym(config: Path, out: Path, quiet: bool) -> None:
+    try:
+        from loopid.experiments.gym_config import run_gym_config
+    except ImportError:
+        raise ValueError("the gym scenario needs loopid.experiments.gym_config") from None
+    output = _Output(quiet)
+    table = run_gym_config(config, out, quiet=quiet, log=output.log)
+    output.log(f"wrote {table.num_rows} rows to {out}/")
 
 
 @app.command()
 def reproduce(
     out: Path = typer.Option(Path("runs/reproduce"), "--out", help="Run directory."),
     seeds: int = typer.Option(None, "--seeds", help="Number of seeds (default 20; --quick 2)."),
-    quick: bool = typer.Option(False, "--quick", help="Smoke run: 2 seeds, 4 iterations."),
-    quiet: bool = typer.Option(False, "--quiet", help="No progress output."),
+    quick: bool = typer.Option(
+        False, "--quick", help="Smoke run: every panel and method, 2 seeds, 4 iterations."
+    ),
+    quiet: bool = QUIET,
+    executor: str = EXECUTOR,
+    ray_address: str = RAY_ADDRESS,
+    threads: int = THREADS,
 ) -> None:
     """The paper's Figure 2: hover, hover with delay 1 and the nose-in funnel, every method."""
-    from loopid.algorithms.methods import METHODS
+    from loopid.experiments.executors import check_executor
     from loopid.experiments.scenarios import SCENARIOS
 
-    changes = dict(QUICK, seeds=2) if quick else {}
+    t0 = time.perf_counter()
+    check_executor(executor, ray_address)
+    changes = dict(QUICK) if quick else {}
     if seeds is not None:
         changes["seeds"] = seeds
     scenarios = [s.replace(**changes) for s in SCENARIOS.values()]
-    _execute(out, scenarios, list(METHODS), quiet)
+    _execute(
+        out,
+        scenarios,
+        _methods(ALL_METHODS),
+        quiet=quiet,
+        executor=executor,
+        ray_address=ray_address,
+        threads=threads,
+        t0=t0,
+    )
 
 
-def _compile_cache() -> None:
-    """Turn on JAX's persistent compilation cache (``LOOPID_JAX_CACHE``, default
-    ``~/.cache/loopid/jax``): a second run of the same cells skips most compilation."""
-    import os
+@app.command()
+def plot(
+    run_dir: Path = typer.Argument(..., help="A run directory holding results.parquet."),
+) -> None:
+    """Remake DIR/figure.png and DIR/report.md from DIR/results.parquet (nothing is rerun)."""
+    from loopid.experiments.plots import plot_dir
+    from loopid.experiments.report import write_report
 
-    import jax
-
-    path = os.environ.get("LOOPID_JAX_CACHE", str(Path.home() / ".cache" / "loopid" / "jax"))
-    jax.config.update("jax_compilation_cache_dir", path)
-    jax.config.update("jax_persistent_cache_min_compile_time_secs", 1.0)
+    path = plot_dir(run_dir)
+    write_report(run_dir)
+    typer.echo(f"wrote {path} and {run_dir / 'report.md'}", err=True)
 
 
 def main(argv: list[str] | None = None) -> None:
     """Console-script entry point: user errors exit 2 with one line, never a traceback."""
-    _compile_cache()
+    from loopid.experiments.executors import compile_cache
+
+    compile_cache()
     try:
         code = app(args=argv, standalone_mode=False)
     except typer.Abort:
