@@ -66,6 +66,8 @@ BAD = [
     (["run", "hover", "--executor", "dask"], "'dask'"),
     (["run", "hover", "--ray-address", "auto"], "--ray-address"),
     (["run", "hover", "--threads", "0"], "--threads"),
+    (["run", "hover", "--executor", "ray", "--ray-address", "127.0.0.1:1"], "cannot connect"),
+    (["run", "hover", "--executor", "ray", "--ray-address", "nowhere"], "'nowhere'"),
     (["run", "hover", "--config", "{dir}/missing.toml"], "missing.toml"),
     (["run", "hover", "--config", "{unknown}"], "iteratons"),
     (["run", "hover", "--config", "{badvalue}"], "iterations"),

@@ -16,7 +16,7 @@ import pyarrow as pa
 import loopid
 from loopid.algorithms.loop import Row
 from loopid.algorithms.methods import check_method
-from loopid.experiments.executors import Job, check_executor, executor
+from loopid.experiments.executors import Job, check_executor, executor, ray_session
 from loopid.experiments.results import trace_table, with_metadata
 from loopid.experiments.rundir import RunDir
 from loopid.experiments.runner import run
@@ -102,6 +102,14 @@ def run_cells(
     """
     seeds = check_cells(scenarios, methods, seeds)
     check_executor(executor_name, ray_address)
+    if executor_name == "ray":
+        import ray
+
+        if not ray.is_initialized():  # connect before anything is written (a bad address)
+            with ray_session(ray_address):
+                return run_cells(
+                    out, scenarios, methods, seeds, executor_name="ray", on_cell=on_cell, log=log
+                )
     rd = RunDir(out)
     rd.prepare(resolved_config(scenarios, methods, seeds))
     order = [(s.name, m) for s in scenarios for m in methods]
@@ -113,7 +121,7 @@ def run_cells(
                     log(f"{s.name} / {m}: already finished, skipped")
             else:
                 jobs.append(Job(s, m))
-    options = {"address": ray_address} if executor_name == "ray" else {"threads": threads}
+    options = {} if executor_name == "ray" else {"threads": threads}
     for job, table in executor(executor_name)(jobs, seeds, run_cell, on_cell=on_cell, **options):
         rd.save_cell(job.scenario.name, job.method, table)
         rd.write_results(order)

@@ -18,6 +18,7 @@ import os
 import queue
 import threading
 from collections.abc import Callable, Iterator, Sequence
+from contextlib import contextmanager, nullcontext
 from pathlib import Path
 from typing import NamedTuple
 
@@ -64,6 +65,8 @@ def check_executor(name: str, address: str | None = None) -> None:
         raise ValueError(f"unknown executor {name!r}; choose from {', '.join(EXECUTORS)}")
     if address is not None and name != "ray":
         raise ValueError(f"--ray-address {address!r} needs --executor ray")
+    if address is not None:
+        _check_reachable(address)
     if name == "ray":
         try:
             import ray  # noqa: F401
@@ -82,6 +85,24 @@ def groups(jobs: Sequence[Job]) -> list[list[Job]]:
         key = (job.scenario.name, kind) if kind is not None else (job.scenario.name, job.method)
         out.setdefault(key, []).append(job)
     return list(out.values())
+
+
+def _check_reachable(address: str) -> None:
+    """Fail fast (Ray itself retries for minutes) when nothing listens at ``host:port``."""
+    import socket
+
+    if address in ("auto", "local"):
+        return
+    hostport = address.removeprefix("ray://")
+    host, _, port = hostport.rpartition(":")
+    if not host or not port.isdigit():
+        raise ValueError(
+            f"--ray-address must be HOST:PORT, ray://HOST:PORT or auto, got {address!r}"
+        )
+    try:
+        socket.create_connection((host, int(port)), timeout=3).close()
+    except OSError as e:
+        raise ValueError(f"--ray-address {address!r}: cannot connect ({e})") from None
 
 
 def run_local(
@@ -176,15 +197,7 @@ def run_ray(
     """
     import ray
 
-    started = False
-    if not ray.is_initialized():
-        options = dict(include_dashboard=False, log_to_driver=False, configure_logging=False)
-        if address is not None:
-            ray.init(address=address, **options)
-        else:
-            ray.init(num_cpus=num_cpus or os.cpu_count() or 1, **options)
-        started = True
-    try:
+    with ray_session(address, num_cpus) if not ray.is_initialized() else nullcontext():
         import jax
 
         task = ray.remote(num_cpus=1, max_retries=0)(_ray_cell)
@@ -194,9 +207,35 @@ def run_ray(
             done, _ = ray.wait(list(pending), num_returns=1)
             job = pending.pop(done[0])
             yield job, ray.get(done[0])
+
+
+@contextmanager
+def ray_session(address: str | None = None, num_cpus: int | None = None):
+    """Connect to Ray for the ``with`` block: join the cluster at ``address``, or start a local
+    one with ``num_cpus`` (default: the machine's CPUs); disconnect (and stop a local one)
+    afterwards. A cluster that cannot be joined raises ``ValueError`` naming the address."""
+    import logging
+
+    import ray
+
+    options = dict(include_dashboard=False, log_to_driver=False, configure_logging=False)
+    ray_logger = logging.getLogger("ray")
+    level = ray_logger.level
+    ray_logger.setLevel(logging.ERROR)  # start-up notices would clutter --quiet and CI logs
+    try:
+        if address is not None:
+            ray.init(address=address, **options)
+        else:
+            ray.init(num_cpus=num_cpus or os.cpu_count() or 1, **options)
+    except (ConnectionError, RuntimeError, ValueError) as e:
+        what = f"--ray-address {address!r}" if address else "a local Ray"
+        raise ValueError(f"cannot start or join {what}: {' '.join(str(e).split())}") from None
     finally:
-        if started:
-            ray.shutdown()
+        ray_logger.setLevel(level)
+    try:
+        yield
+    finally:
+        ray.shutdown()
 
 
 def executor(name: str) -> Callable[..., Iterator[tuple[Job, pa.Table]]]:
