@@ -65,7 +65,6 @@ BAD = [
     (["run", "hover", "--samples", "0"], "samples"),
     (["run", "hover", "--executor", "dask"], "'dask'"),
     (["run", "hover", "--ray-address", "auto"], "--ray-address"),
-    (["run", "hover", "--threads", "0"], "--threads"),
     (["run", "hover", "--executor", "ray", "--ray-address", "127.0.0.1:1"], "cannot connect"),
     (["run", "hover", "--executor", "ray", "--ray-address", "nowhere"], "'nowhere'"),
     (["run", "hover", "--config", "{dir}/missing.toml"], "missing.toml"),
@@ -165,8 +164,8 @@ def _cell_mtimes(out: Path) -> dict[str, int]:
 
 @pytest.mark.slow
 def test_killed_run_resumes_to_the_same_table(tmp_path, cache, quick):
-    args = ["run", "hover", "--methods", "expert,batch-t,dagger-t", "--seeds", "2", "--threads",
-            "1", "--iterations", "4", "--test-trajectories", "10", "--quiet"]  # fmt: skip
+    args = ["run", "hover", "--methods", "expert,batch-t,dagger-t", "--seeds", "2",
+            "--iterations", "4", "--test-trajectories", "10", "--quiet"]  # fmt: skip
     whole = tmp_path / "whole"
     r = cli(*args, "--out", whole, cache=cache)
     assert r.returncode == 0, r.stderr

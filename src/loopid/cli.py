@@ -53,7 +53,7 @@ class _Output:
     """Progress and log lines for a run.
 
     On a terminal: one rich progress bar per running cell (iterations, elapsed, ETA; cells
-    running on several threads share one display) and a line per finished cell. Not a terminal
+    running at once share one display) and a line per finished cell. Not a terminal
     (CI logs): the lines only. ``--quiet``: nothing but errors.
     """
 
@@ -135,7 +135,7 @@ def _finish(out: Path, table, t0: float, output: _Output) -> None:
     output.log(f"wrote {table.num_rows} rows, figure.png and report.md to {out}/")
 
 
-def _execute(out, scenarios, methods, *, quiet, executor, ray_address, threads, t0) -> None:
+def _execute(out, scenarios, methods, *, quiet, executor, ray_address, t0) -> None:
     from loopid.experiments.execute import run_cells
 
     output = _Output(quiet)
@@ -146,7 +146,6 @@ def _execute(out, scenarios, methods, *, quiet, executor, ray_address, threads, 
             methods,
             executor_name=executor,
             ray_address=ray_address,
-            threads=_threads(threads),
             on_cell=output.on_cell,
             log=output.log,
         )
@@ -155,26 +154,11 @@ def _execute(out, scenarios, methods, *, quiet, executor, ray_address, threads, 
     _finish(out, table, t0, output)
 
 
-def _threads(threads: int | None) -> int:
-    import os
-
-    if threads is None:
-        return max(1, min(os.cpu_count() or 1, 4))
-    if threads < 1:
-        raise ValueError(f"--threads must be >= 1, got {threads}")
-    return threads
-
-
 EXECUTOR = typer.Option("local", "--executor", help="local (in this process) or ray.")
 RAY_ADDRESS = typer.Option(
     None, "--ray-address", help="Join this Ray cluster (default: start a local one)."
 )
 QUIET = typer.Option(False, "--quiet", help="No progress output (errors only).")
-THREADS = typer.Option(
-    None,
-    "--threads",
-    help="Local executor: groups of cells computed at once (default: the CPUs, at most 4).",
-)
 
 
 @app.command()
@@ -194,7 +178,6 @@ def run(
     quiet: bool = QUIET,
     executor: str = EXECUTOR,
     ray_address: str = RAY_ADDRESS,
-    threads: int = THREADS,
 ) -> None:
     """Run one scenario's methods on every seed into a run directory."""
     t0 = time.perf_counter()
@@ -206,7 +189,6 @@ def run(
     if scenario == "gym":
         given = [f"--{k.replace('_', '-')}" for k in options] + (["--methods"] if methods else [])
         given += ["--executor"] if executor != "local" or ray_address else []
-        given += ["--threads"] if threads is not None else []
         if given:
             raise ValueError(
                 f"loopid run gym takes its settings from --config; remove {', '.join(given)}"
@@ -237,7 +219,6 @@ def run(
         quiet=quiet,
         executor=executor,
         ray_address=ray_address,
-        threads=threads,
         t0=t0,
     )
 
@@ -262,7 +243,6 @@ def reproduce(
     quiet: bool = QUIET,
     executor: str = EXECUTOR,
     ray_address: str = RAY_ADDRESS,
-    threads: int = THREADS,
 ) -> None:
     """The paper's Figure 2: hover, hover with delay 1 and the nose-in funnel, every method."""
     from loopid.experiments.executors import check_executor
@@ -281,7 +261,6 @@ def reproduce(
         quiet=quiet,
         executor=executor,
         ray_address=ray_address,
-        threads=threads,
         t0=t0,
     )
 

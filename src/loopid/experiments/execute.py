@@ -88,7 +88,6 @@ def run_cells(
     *,
     executor_name: str = "local",
     ray_address: str | None = None,
-    threads: int = 1,
     on_cell: ProgressFactory | None = None,
     log: Callable[[str], None] | None = None,
 ) -> pa.Table:
@@ -96,8 +95,7 @@ def run_cells(
 
     ``seeds`` defaults to ``range(scenario.seeds)`` of the first scenario (all scenarios of one
     run share the seeds). ``executor_name``: ``local`` or ``ray`` (``ray_address`` joins a
-    cluster); ``threads``: how many groups of cells the local executor runs at once. Each
-    finished cell is saved at once (atomically); ``results.parquet`` is
+    cluster). Each finished cell is saved at once (atomically); ``results.parquet`` is
     rewritten after every cell.
     """
     seeds = check_cells(scenarios, methods, seeds)
@@ -121,8 +119,7 @@ def run_cells(
                     log(f"{s.name} / {m}: already finished, skipped")
             else:
                 jobs.append(Job(s, m))
-    options = {} if executor_name == "ray" else {"threads": threads}
-    for job, table in executor(executor_name)(jobs, seeds, run_cell, on_cell=on_cell, **options):
+    for job, table in executor(executor_name)(jobs, seeds, run_cell, on_cell=on_cell):
         rd.save_cell(job.scenario.name, job.method, table)
         rd.write_results(order)
         if log:

@@ -1,11 +1,10 @@
 """Executors: where the cells of a run are computed. The same seeds give the same table on any.
 
-- ``local`` (default): in this process, JAX's persistent compilation cache on
-  (:func:`compile_cache`). Cells that share a compiled program (DAgger, Batch and Abbeel with
-  the same scenario and ν) form a group that runs in order and compiles once; with
-  ``threads > 1`` the groups run on that many threads at once. Compilation (XLA, C++) and
-  execution release the GIL, so two threads on two cores compile two programs at once, and a
-  small run, where compilation dominates, takes about half the time.
+- ``local`` (default): in this process, one cell after another, JAX's persistent compilation
+  cache on (:func:`compile_cache`). Cells that share a compiled program (DAgger, Batch and
+  Abbeel with the same scenario and ν) reuse it. (Cells on several threads of one process were
+  tried and dropped: concurrent executions on XLA's CPU client deadlock when its thread pool is
+  as small as the machine's two cores; use ``ray`` for cells in parallel.)
 - ``ray`` (extra ``[ray]``): each cell is one Ray task (``num_cpus=1``) calling the same cell
   function; ``address`` joins an existing cluster, otherwise a local Ray is started with the
   machine's CPUs and shut down afterwards. Workers use the same compilation cache folder.
@@ -15,8 +14,6 @@ An executor is a generator: ``executor(jobs, seeds, cell, on_cell=..., **options
 """
 
 import os
-import queue
-import threading
 from collections.abc import Callable, Iterator, Sequence
 from contextlib import contextmanager, nullcontext
 from pathlib import Path
@@ -74,19 +71,6 @@ def check_executor(name: str, address: str | None = None) -> None:
             raise ValueError("--executor ray needs Ray: pip install 'loopid[ray]'") from None
 
 
-def groups(jobs: Sequence[Job]) -> list[list[Job]]:
-    """The jobs grouped by the compiled program they share (scenario and ν for DAgger, Batch and
-    Abbeel; one group per cell otherwise), each group in the jobs' order."""
-    from loopid.algorithms.methods import nu_kind
-
-    out: dict[tuple, list[Job]] = {}
-    for job in jobs:
-        kind = nu_kind(job.method)
-        key = (job.scenario.name, kind) if kind is not None else (job.scenario.name, job.method)
-        out.setdefault(key, []).append(job)
-    return list(out.values())
-
-
 def _check_reachable(address: str) -> None:
     """Fail fast (Ray itself retries for minutes) when nothing listens at ``host:port``."""
     import socket
@@ -111,63 +95,13 @@ def run_local(
     cell: CellFunction,
     *,
     on_cell: Callable | None = None,
-    threads: int = 1,
 ) -> Iterator[tuple[Job, pa.Table]]:
-    """Compute the cells in this process; ``on_cell(scenario, method, iterations)`` returns a
-    per-iteration progress callback (or None).
-
-    ``threads == 1``: one cell after another, in order. ``threads > 1``: the :func:`groups` run
-    on that many daemon threads (a group's cells in order); cells are yielded as they finish,
-    and the first error is raised once the cells already running have stopped being waited for.
-    """
-    if threads < 1:
-        raise ValueError(f"threads must be >= 1, got {threads!r}")
-
-    def compute(job: Job) -> pa.Table:
+    """Compute the cells in this process, in order; ``on_cell(scenario, method, iterations)``
+    returns a per-iteration progress callback (or None)."""
+    for job in jobs:
         s = job.scenario
         progress = on_cell(s.name, job.method, s.iterations) if on_cell else None
-        return cell(s, job.method, seeds, progress=progress)
-
-    if threads == 1 or len(jobs) <= 1:
-        for job in jobs:
-            yield job, compute(job)
-        return
-    todo: queue.Queue = queue.Queue()
-    for group in groups(jobs):
-        todo.put(group)
-    done: queue.Queue = queue.Queue()
-    stop = threading.Event()
-
-    def worker() -> None:
-        while not stop.is_set():
-            try:
-                group = todo.get_nowait()
-            except queue.Empty:
-                return
-            for job in group:
-                if stop.is_set():
-                    return
-                try:
-                    done.put((job, compute(job), None))
-                except BaseException as e:  # handed to the main thread
-                    done.put((job, None, e))
-                    return
-
-    for _ in range(min(threads, todo.qsize())):
-        threading.Thread(target=worker, daemon=True).start()
-    try:
-        for _ in range(len(jobs)):
-            while True:
-                try:
-                    job, table, error = done.get(timeout=0.2)
-                    break
-                except queue.Empty:
-                    continue
-            if error is not None:
-                raise error
-            yield job, table
-    finally:
-        stop.set()
+        yield job, cell(s, job.method, seeds, progress=progress)
 
 
 def _ray_cell(s: Scenario, method: str, seeds, cache_dir: str) -> pa.Table:

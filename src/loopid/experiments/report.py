@@ -307,6 +307,13 @@ def report_text(
         "`final(m)` is the test cost at method m's last iteration; numbers are medians.",
         "",
     ]
+    seeds = len(np.unique(np.asarray(table.column("seed"))))
+    if seeds < 20:
+        L += [
+            f"*A small run ({seeds} seeds): the findings are claims about the protocol scale "
+            "(SPEC §4.4, 20 seeds); here they are computed the same way but say little.*",
+            "",
+        ]
     for f in findings(table, hover_panels):
         L += [
             f"{f.number}. **{f.claim}** — **{f.verdict}** (on means: {f.mean_verdict})",

@@ -5,7 +5,6 @@ exploration distribution for a :class:`~loopid.experiments.scenarios.Scenario`, 
 method on all seeds at once (:mod:`loopid.algorithms.loop`).
 """
 
-import threading
 from collections.abc import Callable
 from functools import lru_cache
 from typing import NamedTuple
@@ -62,17 +61,11 @@ def _setup_cached(
     return Setup(plant, expert_gains(t), nominal_model(plant))
 
 
-#: Guards the caches below: cells of one scenario may run on several threads at once
-#: (:mod:`loopid.experiments.executors`), and each shared piece must be built once.
-_LOCK = threading.RLock()
-
-
 def setup(s: Scenario) -> Setup:
     """The shared :class:`Setup` of a scenario (cached: the expert is computed once per task)."""
-    with _LOCK:
-        return _setup_cached(
-            s.task, s.noise_std, s.delay, s.pads, s.stop_norm, s.nu_pending, s.cost_cap
-        )
+    return _setup_cached(
+        s.task, s.noise_std, s.delay, s.pads, s.stop_norm, s.nu_pending, s.cost_cap
+    )
 
 
 def run(
@@ -122,28 +115,25 @@ _CELLS: dict = {}
 
 def _agent(s: Scenario, st: Setup) -> Agent:
     key = (id(st), s.ftrl_lambda)
-    with _LOCK:
-        if key not in _AGENTS:
-            learner = ftrl_least_squares(s.ftrl_lambda)
-            task = st.plant.task
-            _AGENTS[key] = linear_agent(st.nominal, learner, task.Q, task.R, st.plant.horizon)
-        return _AGENTS[key]
+    if key not in _AGENTS:
+        learner = ftrl_least_squares(s.ftrl_lambda)
+        task = st.plant.task
+        _AGENTS[key] = linear_agent(st.nominal, learner, task.Q, task.R, st.plant.horizon)
+    return _AGENTS[key]
 
 
 def _cell(s: Scenario, st: Setup, agent: Agent, kind: str):
     """The ν sampler and the compiled cell of ``kind``, shared by DAgger, Batch and Abbeel."""
     key = (id(st), id(agent), kind, s.nu_state_var, s.nu_action_var, s.expert_action_var)
     key += (s.samples, s.iterations, s.test_trajectories, s.sampling, s.gamma, s.test_policy)
-    with _LOCK:
-        if key not in _CELLS:
-            nu = make_nu(
-                kind, st.plant, st.K_expert, state_var=s.nu_state_var,
-                action_var=s.nu_action_var, expert_action_var=s.expert_action_var,
-            )  # fmt: skip
-            cell = make_cell(
-                st.plant, agent, nu, samples=s.samples, iterations=s.iterations,
-                n_test=s.test_trajectories, mode=s.sampling, gamma=s.gamma,
-                test_policy=s.test_policy,
-            )  # fmt: skip
-            _CELLS[key] = (nu, cell)
-        return _CELLS[key]
+    if key not in _CELLS:
+        nu = make_nu(
+            kind, st.plant, st.K_expert, state_var=s.nu_state_var, action_var=s.nu_action_var,
+            expert_action_var=s.expert_action_var,
+        )  # fmt: skip
+        cell = make_cell(
+            st.plant, agent, nu, samples=s.samples, iterations=s.iterations,
+            n_test=s.test_trajectories, mode=s.sampling, gamma=s.gamma, test_policy=s.test_policy,
+        )  # fmt: skip
+        _CELLS[key] = (nu, cell)
+    return _CELLS[key]
