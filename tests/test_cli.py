@@ -80,6 +80,7 @@ BAD = [
     (["reproduce", "--seeds", "0"], "seeds"),
     (["reproduce", "--executor", "spark"], "'spark'"),
     (["plot", "{dir}"], "results.parquet"),
+    (["plot", "{corrupt}"], "not a readable Parquet table"),
 ]
 
 
@@ -93,7 +94,10 @@ def test_bad_input_exits_2_with_one_line(args, needle, tmp_path, no_cache, capsy
         "badmethods": write(tmp_path / "m.toml", 'methods = "dagger-t"\n'),
         "badmethod": write(tmp_path / "n.toml", 'methods = ["dagger-x"]\n'),
         "nottoml": write(tmp_path / "x.toml", "iterations = = 3\n"),
+        "corrupt": tmp_path / "c",
     }
+    (tmp_path / "c").mkdir()
+    write(tmp_path / "c" / "results.parquet", "not parquet")
     before = sorted(p.name for p in tmp_path.iterdir())
     out = tmp_path / "out"
     args = [a.format(**files) for a in args]

@@ -103,4 +103,8 @@ def plot_dir(run_dir: Path) -> Path:
     results = run_dir / "results.parquet"
     if not results.is_file():
         raise ValueError(f"{str(run_dir)!r} holds no results.parquet")
-    return figure(read_table(results), run_dir / "figure.png")
+    try:
+        table = read_table(results)
+    except (pa.ArrowException, OSError) as e:
+        raise ValueError(f"{str(results)!r} is not a readable Parquet table ({e})") from None
+    return figure(table, run_dir / "figure.png")
