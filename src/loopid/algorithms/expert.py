@@ -15,16 +15,23 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from loopid.control.lqr import dlqr_affine
+from loopid.control.ilqr import ilqr
+from loopid.control.lqr import _dlqr_affine
 from loopid.systems import helicopter
 from loopid.systems.tasks import Task
 
 
+@jax.jit
+def _linearised_lqr(x_star, x_star_next, Q, R):
+    A, B = helicopter.linearize(x_star, x_star_next)
+    return _dlqr_affine(A, B, Q, R)
+
+
 def hover_expert_gain(task: Task) -> jax.Array:
-    """The steady-state LQR gain ``[m, n]`` of the true model linearised about the target."""
+    """The steady-state LQR gain ``[m, n]`` of the true model linearised about the target
+    (one compiled program: linearisation and solve)."""
     target = jnp.asarray(task.target)
-    A, B = helicopter.linearize(target[0], target[1])
-    sol = dlqr_affine(A, B, task.Q, task.R)
+    sol = _linearised_lqr(target[0], target[1], jnp.asarray(task.Q), jnp.asarray(task.R))
     if not bool(sol.converged):
         raise RuntimeError("the linearised expert's LQR did not converge on the true model")
     return sol.K
@@ -53,8 +60,6 @@ def funnel_initial_actions(task: Task) -> np.ndarray:
 
 def funnel_expert_gains(task: Task, *, max_iter: int = 100) -> jax.Array:
     """iLQR on the true noise-free simulator along the target, as affine error-coordinate gains."""
-    from loopid.control.ilqr import ilqr
-
     target = jnp.asarray(task.target, jnp.float64)
     zero_noise = jnp.zeros(helicopter.N_NOISE, jnp.float64)
     Q, R = jnp.asarray(task.Q), jnp.asarray(task.R)
@@ -70,14 +75,19 @@ def funnel_expert_gains(task: Task, *, max_iter: int = 100) -> jax.Array:
     sol = ilqr(dynamics, cost, jnp.asarray(task.x0), U0, max_iter=max_iter)
     if not bool(sol.converged):
         raise RuntimeError(f"the funnel expert's iLQR did not converge in {max_iter} iterations")
-    # u_t = Ū_t − K_t (x_t − X̄_t) in raw coordinates; x_t − X̄_t ≈ J_t (Δx_t − ΔX̄_t) with
-    # J_t = ∂ from_error(Δx, x*_t) / ∂Δx at ΔX̄_t.
-    dX = jax.vmap(helicopter.to_error)(sol.X[:-1], target[:-1])
+    return _error_coordinate_gains(sol.X, sol.U, sol.K, target)
+
+
+@jax.jit
+def _error_coordinate_gains(X, U, K, target):
+    """``u_t = Ū_t − K_t (x_t − X̄_t)`` in raw coordinates as an affine gain on error coordinates:
+    ``x_t − X̄_t ≈ J_t (Δx_t − ΔX̄_t)`` with ``J_t = ∂ from_error(Δx, x*_t) / ∂Δx`` at ``ΔX̄_t``."""
+    dX = jax.vmap(helicopter.to_error)(X[:-1], target[:-1])
     J = jax.vmap(jax.jacfwd(helicopter.from_error))(dX, target[:-1])
-    Kerr = jnp.einsum("tmx,txe->tme", sol.K, J)
+    Kerr = jnp.einsum("tmx,txe->tme", K, J)
     n = dX.shape[-1]
     feedback = Kerr[:, :, : n - 1]
-    ff = -(sol.U + jnp.einsum("tme,te->tm", feedback, dX[:, : n - 1]))
+    ff = -(U + jnp.einsum("tme,te->tm", feedback, dX[:, : n - 1]))
     return jnp.concatenate([feedback, ff[:, :, None]], axis=-1)
 
 

@@ -27,7 +27,7 @@ simulation itself: threefry on a CPU makes ~13 M float64 normals per second.) ``
 so its reported cost is not biased by the selection.
 """
 
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from typing import Any, NamedTuple
 
 import jax
@@ -148,16 +148,25 @@ class TestNoise(NamedTuple):
     select: jax.Array
 
 
+_NOISE_PROGRAMS: dict = {}
+
+
 def test_noise(plant: Plant, keys: jax.Array, n_test: int, test_policy: str) -> TestNoise:
-    """The test (and selection) noise of every seed, ``[S, n_test, horizon, 6]``."""
+    """The test (and selection) noise of every seed, ``[S, n_test, horizon, 6]``.
 
-    def one(key):
-        test = plant.test_noise(jax.random.fold_in(key, _TEST), n_test)
-        if test_policy != "best":
-            return TestNoise(test, jnp.zeros((0,), test.dtype))
-        return TestNoise(test, plant.test_noise(jax.random.fold_in(key, _SELECT), n_test))
+    One compiled program per plant and shape, reused by every method of a run."""
+    cache_key = (id(plant), n_test, test_policy == "best")
+    cached = _NOISE_PROGRAMS.get(cache_key)
+    if cached is None or cached[0] is not plant:
 
-    return jax.jit(jax.vmap(one))(keys)
+        def one(key):
+            test = plant.test_noise(jax.random.fold_in(key, _TEST), n_test)
+            if test_policy != "best":
+                return TestNoise(test, jnp.zeros((0,), test.dtype))
+            return TestNoise(test, plant.test_noise(jax.random.fold_in(key, _SELECT), n_test))
+
+        cached = _NOISE_PROGRAMS[cache_key] = (plant, jax.jit(jax.vmap(one)))
+    return cached[1](keys)
 
 
 def _evaluate(plant: Plant, carry: _Carry, K, key, noise: TestNoise, n, test_policy: str):
@@ -182,7 +191,7 @@ def _evaluate(plant: Plant, carry: _Carry, K, key, noise: TestNoise, n, test_pol
 def make_cell(
     plant: Plant,
     agent: Agent,
-    nu: Callable[[jax.Array, int], Transitions] | None,
+    nu: Callable[[jax.Array, int], Transitions] | Sequence[Callable] | None,
     *,
     samples: int,
     iterations: int,
@@ -198,12 +207,15 @@ def make_cell(
     by seed inside the same compiled call (see ``seeds_in_turn``).
 
     ``start(keys [S], noise) -> (carry, Row)`` solves and tests the initial model (iteration 1);
-    ``step(carry, keys, noise, n, p) -> (carry, Row)`` runs iteration ``n`` with policy fraction
-    ``p``; ``noise`` is :func:`test_noise` of the same keys.
+    ``step(carry, keys, noise, n, p, which=0) -> (carry, Row)`` runs iteration ``n`` with policy
+    fraction ``p``; ``noise`` is :func:`test_noise` of the same keys. ``nu`` may be a list of
+    samplers, of which ``which`` (traced, so one compiled program serves them all: ν_t, ν_e and
+    ν_en, with DAgger, Batch and Abbeel) picks the one to draw from.
     """
     if test_policy not in TEST_POLICIES:
         raise ValueError(f"test_policy must be one of {TEST_POLICIES}, got {test_policy!r}")
     hist_len = iterations if test_policy == "mixture" else 1
+    nus = [nu] if callable(nu) else list(nu or [])
 
     def seeds_in_turn(f, *args):
         """``f`` on each seed in turn (``lax.map``): a solver's ``cond`` then skips the branch it
@@ -244,12 +256,19 @@ def make_cell(
         row = Row(mean, median, div, zero, zero, zero, count, count, *info, extra)
         return carry, row
 
-    def learn(carry: _Carry, key, n, p):
+    def draw_nu(which, key, from_pol):
+        if not nus:
+            return from_pol
+        if len(nus) == 1:
+            return nus[0](key, samples)
+        return jax.lax.switch(which, [lambda k, f=f: f(k, samples) for f in nus], key)
+
+    def learn(carry: _Carry, key, n, p, which):
         k_pol, k_nu, k_mix = jax.random.split(
             jax.random.fold_in(jax.random.fold_in(key, _TRAIN), n), 3
         )
         from_pol = policy_samples(plant, carry.K, k_pol, samples, mode=mode, gamma=gamma)
-        from_nu = nu(k_nu, samples) if nu is not None else from_pol
+        from_nu = draw_nu(which, k_nu, from_pol)
         take = jax.random.bernoulli(k_mix, p, (samples,))
         batch = select(take, from_pol, from_nu)
 
@@ -262,8 +281,8 @@ def make_cell(
         return carry, (loss_nu, loss_pol, online, *counts)
 
     @jax.jit
-    def step(carry: _Carry, keys, noise, n, p):
-        carry, stats = jax.vmap(learn, in_axes=(0, 0, None, None))(carry, keys, n, p)
+    def step(carry: _Carry, keys, noise, n, p, which=0):
+        carry, stats = jax.vmap(learn, in_axes=(0, 0, None, None, None))(carry, keys, n, p, which)
         carry, (mean, median, div, info, extra) = seeds_in_turn(
             lambda c, k, w: solve_and_test(c, k, w, n, p), carry, keys, noise
         )
@@ -286,6 +305,7 @@ def run_learning(
     test_policy: str = "last",
     progress: Callable[[int, Row], None] | None = None,
     cell=None,
+    which: int = 0,
 ) -> Trace:
     """Run one learning method for ``len(fractions)`` iterations on every seed.
 
@@ -293,7 +313,7 @@ def run_learning(
     the policy (``fractions[0]`` is unused: iteration 1 collects nothing). ``progress(n, row)`` is
     called after each iteration with that iteration's :class:`Row` (leaves ``[S]``). ``cell``:
     a ``(start, step)`` pair from :func:`make_cell` with the same arguments, to reuse its
-    compilation across methods that differ only in their fractions (DAgger, Batch, Abbeel).
+    compilation across methods (DAgger, Batch, Abbeel); ``which`` picks the ν of a list.
     """
     fractions = np.asarray(fractions, dtype=np.float64)
     iterations = int(fractions.shape[0])
@@ -314,7 +334,8 @@ def run_learning(
     if progress:
         progress(1, row)
     for n in range(2, iterations + 1):
-        carry, row = step(carry, keys, noise, jnp.int32(n), jnp.float64(fractions[n - 1]))
+        p = jnp.float64(fractions[n - 1])
+        carry, row = step(carry, keys, noise, jnp.int32(n), p, jnp.int32(which))
         rows.append(row)
         if progress:
             progress(n, row)

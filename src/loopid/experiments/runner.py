@@ -20,7 +20,7 @@ from loopid.algorithms.model_based import linear_agent
 from loopid.algorithms.plant import Plant, helicopter_plant
 from loopid.algorithms.policy_gradient import run_policy_gradient
 from loopid.experiments.scenarios import Scenario
-from loopid.exploration import make_nu
+from loopid.exploration import NU_KINDS, make_nu
 from loopid.learners import ftrl_least_squares
 from loopid.models.linear_offset import LinearOffsetModel, hover_nominal, time_varying_nominal
 from loopid.systems import helicopter
@@ -100,12 +100,12 @@ def run(
             n_test=s.test_trajectories, horizon=s.pg_horizon, sigma=s.pg_sigma, step=s.pg_step,
             nu_state_var=s.nu_state_var, progress=progress,
         )  # fmt: skip
-    kind = M.nu_kind(method)
-    nu, cell = _cell(s, st, agent, kind)
+    nus, cell = _cell(s, st, agent)
     fractions = M.policy_fractions(method, s.iterations, dagger_fraction=s.dagger_fraction)
     return run_learning(
-        st.plant, agent, nu, fractions, seeds, samples=s.samples, n_test=s.test_trajectories,
+        st.plant, agent, nus, fractions, seeds, samples=s.samples, n_test=s.test_trajectories,
         mode=s.sampling, gamma=s.gamma, test_policy=s.test_policy, progress=progress, cell=cell,
+        which=NU_KINDS.index(M.nu_kind(method)),
     )  # fmt: skip
 
 
@@ -122,18 +122,22 @@ def _agent(s: Scenario, st: Setup) -> Agent:
     return _AGENTS[key]
 
 
-def _cell(s: Scenario, st: Setup, agent: Agent, kind: str):
-    """The ν sampler and the compiled cell of ``kind``, shared by DAgger, Batch and Abbeel."""
-    key = (id(st), id(agent), kind, s.nu_state_var, s.nu_action_var, s.expert_action_var)
+def _cell(s: Scenario, st: Setup, agent: Agent):
+    """The ν samplers (ν_t, ν_e, ν_en) and the one compiled cell that DAgger, Batch and Abbeel
+    share on this scenario, whichever ν they draw from (a traced switch)."""
+    key = (id(st), id(agent), s.nu_state_var, s.nu_action_var, s.expert_action_var)
     key += (s.samples, s.iterations, s.test_trajectories, s.sampling, s.gamma, s.test_policy)
     if key not in _CELLS:
-        nu = make_nu(
-            kind, st.plant, st.K_expert, state_var=s.nu_state_var, action_var=s.nu_action_var,
-            expert_action_var=s.expert_action_var,
-        )  # fmt: skip
+        nus = [
+            make_nu(
+                kind, st.plant, st.K_expert, state_var=s.nu_state_var,
+                action_var=s.nu_action_var, expert_action_var=s.expert_action_var,
+            )
+            for kind in NU_KINDS
+        ]  # fmt: skip
         cell = make_cell(
-            st.plant, agent, nu, samples=s.samples, iterations=s.iterations,
+            st.plant, agent, nus, samples=s.samples, iterations=s.iterations,
             n_test=s.test_trajectories, mode=s.sampling, gamma=s.gamma, test_policy=s.test_policy,
         )  # fmt: skip
-        _CELLS[key] = (nu, cell)
+        _CELLS[key] = (nus, cell)
     return _CELLS[key]
