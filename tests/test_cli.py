@@ -74,6 +74,8 @@ BAD = [
     (["run", "hover", "--config", "{badmethods}"], "methods"),
     (["run", "hover", "--config", "{badmethod}"], "'dagger-x'"),
     (["run", "hover", "--config", "{nottoml}"], "TOML"),
+    (["run", "mdp-trap", "--methods", "dagger-t"], "'dagger-t'"),
+    (["run", "mdp-trap", "--test-trajectories", "3"], "--test-trajectories"),
     (["run", "gym"], "--config"),
     (["run", "gym", "--config", "{unknown}", "--seeds", "3"], "--seeds"),
     (["reproduce", "--bogus"], "--bogus"),
@@ -131,6 +133,19 @@ def quick(tmp_path_factory, cache) -> Path:
     r = cli("reproduce", "--quick", "--out", out, cache=cache)
     assert r.returncode == 0, r.stderr
     return out
+
+
+@pytest.mark.slow
+def test_reproduce_quick_adds_the_finite_mdp_study(quick):
+    """The extra figure: DAgger, Batch and Abbeel on the finite MDPs, exact J and the bound."""
+    mdp = quick / "mdp"
+    assert {p.name for p in mdp.iterdir()} >= {"config.toml", "results.parquet", "figure.png"}
+    cols = pq.read_table(mdp / "results.parquet").to_pydict()
+    assert set(zip(cols["scenario"], cols["method"], strict=True)) == {
+        (s, m) for s in ("mdp-random", "mdp-trap") for m in ("dagger", "batch", "abbeel")
+    }
+    assert np.all(np.asarray(cols["j_best"]) <= np.asarray(cols["bound"]))
+    assert "j_best ≤ bound" in (mdp / "report.md").read_text()
 
 
 @pytest.mark.slow

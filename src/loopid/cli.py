@@ -114,24 +114,45 @@ class _Output:
             self.bars = None
 
 
-def _methods(text: str) -> list[str]:
+def _methods(text: str, s=None) -> list[str]:
+    """Parse a comma-separated method list; check it against scenario ``s`` (default: the
+    helicopter's nine methods)."""
     from loopid.algorithms.methods import check_method
+    from loopid.experiments.runner import check_methods
 
     names = [m.strip() for m in text.split(",") if m.strip()]
     if not names:
         raise ValueError("--methods is empty; give a comma-separated list")
-    for m in names:
-        check_method(m)
+    if s is not None:
+        check_methods(s, names)
+    else:
+        for m in names:
+            check_method(m)
     return names
+
+
+def _write_outputs(out: Path, table, command_s: float | None = None) -> None:
+    """``figure.png`` and ``report.md`` of a run directory: the paper's Figure 2 and findings,
+    or the finite-MDP figure and report when the table holds only MDP scenarios."""
+    import numpy as np
+
+    from loopid.experiments.mdp import MDP_SCENARIOS, mdp_figure, mdp_report
+    from loopid.experiments.plots import figure
+    from loopid.experiments.report import write_report
+    from loopid.experiments.results import write_atomic_bytes
+
+    names = set(np.asarray(table.column("scenario").to_numpy(zero_copy_only=False)).tolist())
+    if names and names <= set(MDP_SCENARIOS):
+        mdp_figure(table, out / "figure.png")
+        write_atomic_bytes(mdp_report(table).encode(), out / "report.md")
+    else:
+        figure(table, out / "figure.png")
+        write_report(out, table, command_s=command_s)
 
 
 def _finish(out: Path, table, t0: float, output: _Output) -> None:
     """Draw ``figure.png`` and write ``report.md`` from the table just written."""
-    from loopid.experiments.plots import figure
-    from loopid.experiments.report import write_report
-
-    figure(table, out / "figure.png")
-    write_report(out, table, command_s=time.perf_counter() - t0)
+    _write_outputs(out, table, time.perf_counter() - t0)
     output.log(f"wrote {table.num_rows} rows, figure.png and report.md to {out}/")
 
 
@@ -199,19 +220,26 @@ def run(
         return
 
     from loopid.experiments.executors import check_executor
+    from loopid.experiments.mdp import MDP_SCENARIOS
+    from loopid.experiments.runner import scenario_methods
     from loopid.experiments.scenarios import read_config
     from loopid.experiments.scenarios import scenario as make_scenario
 
     check_executor(executor, ray_address)
     fields = read_config(config) if config is not None else {}
     chosen = fields.pop("methods", None)
-    if methods is not None:
-        chosen = _methods(methods)
-    elif chosen is not None:
-        chosen = _methods(",".join(chosen))
+    if scenario in MDP_SCENARIOS:
+        if "test_trajectories" in options:
+            raise ValueError("--test-trajectories does not apply to MDP scenarios (J is exact)")
+        s = MDP_SCENARIOS[scenario].replace(**(fields | options))
     else:
-        chosen = _methods(ALL_METHODS)
-    s = make_scenario(scenario, **(fields | options))
+        s = make_scenario(scenario, **(fields | options))
+    if methods is not None:
+        chosen = _methods(methods, s)
+    elif chosen is not None:
+        chosen = _methods(",".join(chosen), s)
+    else:
+        chosen = list(scenario_methods(s))
     _execute(
         out,
         [s],
@@ -263,6 +291,20 @@ def reproduce(
         ray_address=ray_address,
         t0=t0,
     )
+    # the extra figure: the finite-MDP study, where the paper's bounds are exact
+    from loopid.experiments.mdp import MDP_METHODS, MDP_SCENARIOS
+
+    mdp_changes = {k: v for k, v in changes.items() if k in ("iterations", "seeds")}
+    mdp = [MDP_SCENARIOS[name].replace(**mdp_changes) for name in ("mdp-random", "mdp-trap")]
+    _execute(
+        out / "mdp",
+        mdp,
+        list(MDP_METHODS),
+        quiet=quiet,
+        executor=executor,
+        ray_address=ray_address,
+        t0=t0,
+    )
 
 
 @app.command()
@@ -270,12 +312,10 @@ def plot(
     run_dir: Path = typer.Argument(..., help="A run directory holding results.parquet."),
 ) -> None:
     """Remake DIR/figure.png and DIR/report.md from DIR/results.parquet (nothing is rerun)."""
-    from loopid.experiments.plots import plot_dir
-    from loopid.experiments.report import write_report
+    from loopid.experiments.plots import load_results
 
-    path = plot_dir(run_dir)
-    write_report(run_dir)
-    typer.echo(f"wrote {path} and {run_dir / 'report.md'}", err=True)
+    _write_outputs(run_dir, load_results(run_dir))
+    typer.echo(f"wrote {run_dir / 'figure.png'} and {run_dir / 'report.md'}", err=True)
 
 
 def main(argv: list[str] | None = None) -> None:

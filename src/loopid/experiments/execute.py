@@ -15,11 +15,10 @@ import pyarrow as pa
 
 import loopid
 from loopid.algorithms.loop import Row
-from loopid.algorithms.methods import check_method
 from loopid.experiments.executors import Job, check_executor, executor, ray_session
 from loopid.experiments.results import trace_table, with_metadata
 from loopid.experiments.rundir import RunDir
-from loopid.experiments.runner import run
+from loopid.experiments.runner import check_methods, run
 from loopid.experiments.scenarios import Scenario
 
 #: ``on_cell(scenario, method, iterations) -> per-iteration callback`` (for progress bars).
@@ -70,8 +69,8 @@ def check_cells(scenarios: Sequence[Scenario], methods: Sequence[str], seeds) ->
         raise ValueError("no methods to run")
     if len(set(methods)) != len(methods):
         raise ValueError(f"methods must differ, got {list(methods)}")
-    for m in methods:
-        check_method(m)
+    for s in scenarios:
+        check_methods(s, methods)
     seeds = np.arange(scenarios[0].seeds) if seeds is None else np.asarray(seeds)
     if seeds.ndim != 1 or seeds.size == 0 or not np.issubdtype(seeds.dtype, np.integer):
         raise ValueError(f"seeds must be a non-empty list of integers, got {seeds.tolist()!r}")

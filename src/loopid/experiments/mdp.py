@@ -76,6 +76,21 @@ class MDPScenario(NamedTuple):
     horizon: int = 150
     seeds: int = 8
 
+    def replace(self, **changes) -> "MDPScenario":
+        """A copy with ``changes``; unknown fields and non-positive sizes raise ValueError."""
+        unknown = sorted(set(changes) - set(self._fields))
+        if unknown:
+            raise ValueError(f"unknown MDP scenario field(s): {', '.join(unknown)}")
+        for name in ("iterations", "samples", "seeds", "horizon"):
+            v = changes.get(name, getattr(self, name))
+            if isinstance(v, bool) or not isinstance(v, int) or v < 1:
+                raise ValueError(f"{name} must be an integer >= 1, got {v!r}")
+        return self._replace(**changes)
+
+    def to_dict(self) -> dict:
+        """The fields as a plain dict (for config.toml)."""
+        return self._asdict()
+
 
 MDP_SCENARIOS = {
     "mdp-random": MDPScenario("mdp-random"),
@@ -250,3 +265,38 @@ def mdp_figure(table, path) -> Path:
     fig.savefig(path)
     plt.close(fig)
     return path
+
+
+def mdp_report(table) -> str:
+    """A short Markdown report of an MDP run: per scenario and method, the final mean J of the
+    learnt policy, of the best policy so far, J* and the bound (means over seeds)."""
+    lines = ["# loopid finite-MDP report", ""]
+    lines += [
+        "Exact quantities (no sampling in the evaluation): J_μ(π) of the learnt policy,",
+        "J of the best policy so far, the optimum J* and the right-hand side of the",
+        "paper's bound for π' = π* (Theorem 3.1 while only ν data was seen, Lemma 4.1",
+        "once a policy contributed). Means over seeds at the last iteration.",
+        "",
+    ]
+    lines += [
+        "| scenario | method | J(π_N) | J(best) | J* | bound | j_best ≤ bound, all rows |",
+        "|---|---|---|---|---|---|---|",
+    ]
+    cols = {
+        c: _column(table, c)
+        for c in ("scenario", "method", "iteration", "j_policy", "j_best", "j_optimal", "bound")
+    }
+    for name in sorted(set(cols["scenario"])):
+        for method in sorted(set(cols["method"][cols["scenario"] == name])):
+            sel = (cols["scenario"] == name) & (cols["method"] == method)
+            last = sel & (cols["iteration"] == cols["iteration"][sel].max())
+            holds = bool(np.all(cols["j_best"][sel] <= cols["bound"][sel] + 1e-9))
+            vals = [
+                float(np.mean(cols[c][last])) for c in ("j_policy", "j_best", "j_optimal", "bound")
+            ]
+            lines.append(
+                f"| {name} | {method} | "
+                + " | ".join(f"{v:.4g}" for v in vals)
+                + f" | {'yes' if holds else 'NO'} |"
+            )
+    return "\n".join(lines) + "\n"

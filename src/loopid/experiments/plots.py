@@ -97,14 +97,18 @@ def figure(table: pa.Table, path: Path) -> Path:
     return path
 
 
-def plot_dir(run_dir: Path) -> Path:
-    """Remake ``run_dir/figure.png`` from ``run_dir/results.parquet`` alone; return its path."""
+def load_results(run_dir: Path) -> pa.Table:
+    """``run_dir/results.parquet``; a missing or unreadable table raises ValueError."""
     run_dir = Path(run_dir)
     results = run_dir / "results.parquet"
     if not results.is_file():
         raise ValueError(f"{str(run_dir)!r} holds no results.parquet")
     try:
-        table = read_table(results)
+        return read_table(results)
     except (pa.ArrowException, OSError) as e:
         raise ValueError(f"{str(results)!r} is not a readable Parquet table ({e})") from None
-    return figure(table, run_dir / "figure.png")
+
+
+def plot_dir(run_dir: Path) -> Path:
+    """Remake ``run_dir/figure.png`` from ``run_dir/results.parquet`` alone; return its path."""
+    return figure(load_results(run_dir), Path(run_dir) / "figure.png")

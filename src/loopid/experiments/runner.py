@@ -80,6 +80,10 @@ def run(
     ``seeds``: integer seeds (default ``range(s.seeds)``). Returns a :class:`Trace` with one row
     per seed and iteration; ``progress(n, row)`` is called after every iteration.
     """
+    if is_mdp(s):
+        from loopid.experiments.mdp import run_mdp
+
+        return run_mdp(method, s, seeds, progress=progress)
     M.check_method(method)
     seeds = np.arange(s.seeds) if seeds is None else np.asarray(seeds)
     st = setup(s)
@@ -107,6 +111,31 @@ def run(
         mode=s.sampling, gamma=s.gamma, test_policy=s.test_policy, progress=progress, cell=cell,
         which=NU_KINDS.index(M.nu_kind(method)),
     )  # fmt: skip
+
+
+def is_mdp(s) -> bool:
+    """Whether ``s`` is a finite-MDP scenario (:class:`loopid.experiments.mdp.MDPScenario`)."""
+    from loopid.experiments.mdp import MDPScenario
+
+    return isinstance(s, MDPScenario)
+
+
+def scenario_methods(s) -> tuple[str, ...]:
+    """The methods a scenario offers: the paper's nine for the helicopter, DAgger, Batch and
+    Abbeel for finite MDPs."""
+    if is_mdp(s):
+        from loopid.experiments.mdp import MDP_METHODS
+
+        return MDP_METHODS
+    return M.METHODS
+
+
+def check_methods(s, methods) -> None:
+    """Raise ``ValueError`` naming the first method ``s`` does not offer."""
+    allowed = scenario_methods(s)
+    for m in methods:
+        if m not in allowed:
+            raise ValueError(f"unknown method {m!r} for {s.name}; choose from {', '.join(allowed)}")
 
 
 _AGENTS: dict = {}
