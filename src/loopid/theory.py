@@ -130,6 +130,12 @@ def dagger_constant(c_ref, H, q=0.5) -> jax.Array:
     return H / 2.0 * jnp.maximum(1.0 / q, c_ref / (1.0 - q))
 
 
-def dagger_bound(j_ref, mean_eps_oc, c_ref, H, mean_eps_l1_rho, q=0.5) -> jax.Array:
-    """Lemma 4.1's right-hand side ``J(π') + ε̄_oc + c_ν^{π'} H ε̄^{L1}_ρ`` (q = ½)."""
-    return j_ref + mean_eps_oc + _times(dagger_constant(c_ref, H, q), mean_eps_l1_rho)
+def dagger_bound(j_ref, mean_eps_oc, c_ref, H, mean_eps_l1_rho, q=0.5, q_max=None) -> jax.Array:
+    """Lemma 4.1's right-hand side ``J(π') + ε̄_oc + c_ν^{π'} H ε̄^{L1}_ρ`` (q = ½).
+
+    When the policy share of ``ρ_i`` varies over the iterations within ``[q, q_max]``, the
+    constant is the worst over that range, which is at one of its ends (``1/q`` falls and
+    ``c/(1−q)`` rises with q); it is ∞ at ``q_max = 1`` (no ν in ρ: no guarantee)."""
+    q_max = q if q_max is None else q_max
+    constant = jnp.maximum(dagger_constant(c_ref, H, q), dagger_constant(c_ref, H, q_max))
+    return j_ref + mean_eps_oc + _times(constant, mean_eps_l1_rho)

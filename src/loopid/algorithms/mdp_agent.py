@@ -249,6 +249,8 @@ class _DiagState(NamedTuple):
     sum_mdl: jax.Array
     sum_j: jax.Array
     best_j: jax.Array
+    q_min: jax.Array
+    q_max: jax.Array
 
 
 def mdp_diagnostics(
@@ -261,8 +263,11 @@ def mdp_diagnostics(
     ``bound``, the error terms that enter it (``eps_prd_l1``, ``eps_prd_kl``, ``eps_mdl_l1``,
     ``eps_oc``), ``c_nu = c_ν^{π*}`` and ``c_nu_policy = c_ν^{π_n}``.
 
-    ``rule="lemma"`` (DAgger): errors averaged over i ≤ n on ``ρ_i = (1−q)ν + q D_{μ,π_i}``,
-    bound = Lemma 4.1's RHS (bounds j_best and j_mixture). ``rule="theorem"`` (Batch): errors of
+    ``rule="lemma"`` (DAgger): errors averaged over i ≤ n on ``ρ_i = (1−q_i)ν + q_i D_{μ,π_i}``,
+    bound = Lemma 4.1's RHS (bounds j_best and j_mixture), with ``q_i`` the policy fraction ``p``
+    of the iteration (``q`` where no batch was learned yet, iteration 1) and the constant taken
+    at the worst ``q_i`` (:func:`loopid.theory.dagger_constant`; ∞ once ν's share is 0, as for
+    Abbeel's policy-only iterations: no guarantee). ``rule="theorem"`` (Batch): errors of
     the current model on ν, bound = Theorem 3.1's RHS (bounds j_policy, hence j_best).
     ``rule="auto"`` (default) follows the data: Theorem 3.1 while every batch so far came from
     ν alone (policy fraction ``p = 0``: Batch, and iteration 1 of every method), Lemma 4.1 once
@@ -288,7 +293,8 @@ def mdp_diagnostics(
 
     def init():
         z = jnp.float64(0.0)
-        return _DiagState(jnp.int32(0), jnp.bool_(False), z, z, z, z, z, jnp.float64(jnp.inf))
+        inf = jnp.float64(jnp.inf)
+        return _DiagState(jnp.int32(0), jnp.bool_(False), z, z, z, z, z, inf, inf, -inf)
 
     def update(state: _DiagState, learner_state: Any, K, p, n):
         T_hat = model.transitions(model.learner.weights(learner_state))
@@ -296,7 +302,8 @@ def mdp_diagnostics(
         j = mu @ evaluate(P, C, g, K)
         eps_oc = theory.oc_error(T_hat, C, g, mu, K, pi_star)
         c_pol = theory.mismatch(D, nu_dist)
-        rho = (1.0 - q) * nu_dist + q * D
+        q_n = jnp.where(p > 0, p, q)  # this iteration's policy share of ρ
+        rho = (1.0 - q_n) * nu_dist + q_n * D
         on_nu = [f(P, T_hat, nu_dist) for f in (theory.l1_error, theory.kl_error)]
         on_rho = [f(P, T_hat, rho) for f in (theory.l1_error, theory.kl_error)]
         state = _DiagState(
@@ -308,13 +315,17 @@ def mdp_diagnostics(
             state.sum_mdl + theory.l1_error(P, T_best, rho),
             state.sum_j + j,
             jnp.minimum(state.best_j, j),
+            jnp.minimum(state.q_min, q_n),
+            jnp.maximum(state.q_max, q_n),
         )
         count = state.n.astype(jnp.float64)
         batch_terms = (*on_nu, theory.l1_error(P, T_best, nu_dist), eps_oc)
         batch = theory.batch_bound(j_star, eps_oc, c_pol, c_star, H, on_nu[0])
         sums = (state.sum_l1, state.sum_kl, state.sum_mdl, state.sum_oc)
         dagger_terms = tuple(x / count for x in sums)
-        dagger = theory.dagger_bound(j_star, dagger_terms[3], c_star, H, dagger_terms[0], q)
+        dagger = theory.dagger_bound(
+            j_star, dagger_terms[3], c_star, H, dagger_terms[0], state.q_min, state.q_max
+        )
         use_lemma = {"auto": state.policy_data, "lemma": True, "theorem": False}[rule]
         bound = jnp.where(use_lemma, dagger, batch)
         terms = [jnp.where(use_lemma, a, b) for a, b in zip(dagger_terms, batch_terms, strict=True)]
