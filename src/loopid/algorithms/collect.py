@@ -12,7 +12,7 @@ Two ways to draw ``count`` transitions from running the current policy π from �
   ``L`` has ``P(L = k) ∝ (1 − γ) γ^k``, truncated to the horizon (exact inverse-CDF draw). An
   unbiased draw from the (truncated) discounted distribution ``D_{μ,π}``.
 
-A draw whose step was not valid (the safe region was left there) comes back masked.
+A draw whose trajectory left the safe region before its step comes back masked.
 """
 
 import math
@@ -40,6 +40,18 @@ def geometric_steps(key: jax.Array, count: int, gamma: float, horizon: int) -> j
     return jnp.clip(steps, 0, horizon - 1).astype(jnp.int32)
 
 
+def _keep_only(tr, keep: jax.Array):
+    """``tr`` with the rows outside ``keep`` masked and zero-filled (any transitions NamedTuple
+    with ``t`` and ``mask`` fields)."""
+    mask = tr.mask & keep
+
+    def zero(a):
+        return jnp.where(mask.reshape(mask.shape + (1,) * (a.ndim - 1)), a, jnp.zeros_like(a))
+
+    rows = {f: getattr(tr, f) if f in ("t", "mask") else zero(getattr(tr, f)) for f in tr._fields}
+    return type(tr)(**rows)._replace(mask=mask)
+
+
 def policy_samples(
     plant: Plant,
     K: jax.Array,
@@ -59,5 +71,8 @@ def policy_samples(
         k_roll, k_stop = jax.random.split(key)
         steps = geometric_steps(k_stop, count, gamma, plant.horizon)
         tr = jax.vmap(lambda k: plant.rollout(K, k))(jax.random.split(k_roll, count))
-        return jax.tree_util.tree_map(lambda a: a[jnp.arange(count), steps], tr)
+        kept = jax.tree_util.tree_map(lambda a: a[jnp.arange(count), steps], tr)
+        # a run cut by the safe region before step L restarted from μ: its step L is not a draw
+        # of this trajectory, so it is dropped (masked) rather than taken from the restart
+        return _keep_only(kept, kept.t == steps)
     raise ValueError(f"unknown sampling mode {mode!r}; choose one of {SAMPLING_MODES}")

@@ -279,9 +279,7 @@ def _row(mean, median, div, loss_nu, loss_pol, online, pol_n, valid_n, info) -> 
         solver_converged=np.asarray(info.converged, bool),
         spectral_radius=np.asarray(info.spectral_radius, np.float64),
     )
-    if "extra" in Row._fields:
-        fields["extra"] = {}
-    return Row(**fields)
+    return Row(**fields, extra={})
 
 
 def _trace(seeds, samples: int, rows: list[Row]) -> Trace:

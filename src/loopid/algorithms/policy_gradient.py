@@ -14,7 +14,7 @@ the gradient ``g`` is the minimum-norm least-squares solution of
     ⟨g, δ_j⟩ = (c_j⁺ − c_j⁻) / 2,   j = 1..P,
 
 and the step is normalised, ``θ ← θ − η g / ‖g‖`` (*choice*: costs span orders of magnitude, a
-raw gradient step has no usable scale). Rollout costs are capped like test costs.
+raw gradient step has no usable scale). Rollout costs are capped like test costs (``cost_cap``).
 """
 
 from collections.abc import Callable
@@ -41,6 +41,7 @@ def run_policy_gradient(
     sigma: float = 0.01,
     step: float = 0.05,
     nu_state_var: float = 0.0025,
+    cost_cap: float = 1e8,
     progress: Callable[[int, Row], None] | None = None,
 ) -> Trace:
     """Run the baseline on every seed; the result has the shape of every other method's."""
@@ -51,7 +52,7 @@ def run_policy_gradient(
     keys = seed_keys(seeds)
     target = jnp.asarray(plant.task.target, jnp.float64)
     Q, R = jnp.asarray(plant.task.Q), jnp.asarray(plant.task.R)
-    cap = 1e8
+    cap = float(cost_cap)
     K1, info = agent.policy(agent.init())
     m, n = plant.n_action, plant.n_state
     d = int(plant.task.delay)
@@ -84,7 +85,7 @@ def run_policy_gradient(
             zero,
             zero,
             zero,
-            jnp.int32(0),
+            jnp.int32(2 * pairs * H),  # every sample comes from the (perturbed) policy
             jnp.int32(2 * pairs * H),
             info.converged,
             info.spectral_radius,

@@ -102,7 +102,7 @@ def run(
         return run_policy_gradient(
             st.plant, agent, seeds, iterations=s.iterations, samples=s.samples,
             n_test=s.test_trajectories, horizon=s.pg_horizon, sigma=s.pg_sigma, step=s.pg_step,
-            nu_state_var=s.nu_state_var, progress=progress,
+            nu_state_var=s.nu_state_var, cost_cap=s.cost_cap, progress=progress,
         )  # fmt: skip
     nus, cell = _cell(s, st, agent)
     fractions = M.policy_fractions(method, s.iterations, dagger_fraction=s.dagger_fraction)
