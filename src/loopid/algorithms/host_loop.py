@@ -34,7 +34,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from loopid.algorithms.loop import Agent, Row, Trace, seed_keys
+from loopid.algorithms.loop import Agent, Row, Trace, _masked_mean, _trace, seed_keys
 from loopid.algorithms.model_based import linear_agent
 from loopid.algorithms.plant import Transitions, draw, select
 from loopid.learners import ftrl_least_squares
@@ -109,12 +109,6 @@ class HostCell(NamedTuple):
 class _Carry(NamedTuple):
     learner: Any
     loss_sum: jax.Array
-
-
-def _masked_mean(values, mask):
-    count = jnp.sum(mask)
-    total = jnp.sum(jnp.where(mask, values, 0.0))
-    return jnp.where(count > 0, total / jnp.maximum(count, 1).astype(total.dtype), 0.0)
 
 
 def make_host_cell(agent: Agent, *, samples: int, with_nu: bool = True) -> HostCell:
@@ -280,9 +274,3 @@ def _row(mean, median, div, loss_nu, loss_pol, online, pol_n, valid_n, info) -> 
         spectral_radius=np.asarray(info.spectral_radius, np.float64),
     )
     return Row(**fields, extra={})
-
-
-def _trace(seeds, samples: int, rows: list[Row]) -> Trace:
-    stacked = jax.tree_util.tree_map(lambda *a: np.stack(a, axis=1), *rows)
-    iteration = np.arange(1, len(rows) + 1)
-    return Trace(np.asarray(seeds), iteration, (iteration - 1) * samples, stacked)
