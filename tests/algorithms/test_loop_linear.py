@@ -77,7 +77,8 @@ class LinearSetup:
     def optimal_costs(self):
         """Mean test cost [S] of the optimal LQR policy on the loop's test noise."""
         K = jnp.broadcast_to(self.K_opt, (HORIZON, *self.K_opt.shape))
-        costs, _ = jax.vmap(lambda w: self.plant.test_costs(K, w))(self.noise.test)
+        S = self.noise.test.shape[2]
+        costs, _ = self.plant.test_seeds(jnp.broadcast_to(K, (S, *K.shape)), self.noise.test)
         return np.asarray(costs).mean(axis=1)
 
 

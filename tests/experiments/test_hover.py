@@ -94,16 +94,18 @@ def test_expert_row_identical_across_iterations(traces):
 
 def test_expert_and_learners_share_the_test_noise(traces):
     """The expert's and π_1's reported costs are their costs on the loop's test noise of each
-    seed (an independent evaluation, not through the runner)."""
+    seed (an independent evaluation, trajectory by trajectory, not through the runner)."""
     st = setup(SCENARIO)
     agent = _agent(SCENARIO, st)
     K1, _ = jax.jit(agent.policy)(agent.init())
     n_test = SCENARIO.test_trajectories
-    noise = loop_test_noise(st.plant, seed_keys(np.arange(SCENARIO.seeds)), n_test, "last").test
+    columns = loop_test_noise(st.plant, seed_keys(np.arange(SCENARIO.seeds)), n_test, "last").test
+    noise = jnp.moveaxis(columns, (2, 3), (0, 1))  # [S, n_test, horizon, 6]
 
     @jax.jit
-    def mean_costs(K):
-        return jax.vmap(lambda w: jnp.mean(st.plant.test_costs(K, w)[0]))(noise)
+    def mean_costs(K):  # one trajectory at a time (test_one), not the loop's column batch
+        one_seed = jax.vmap(lambda w: st.plant.test_one(K, w)[0])
+        return jax.vmap(lambda w: jnp.mean(one_seed(w)))(noise)
 
     np.testing.assert_allclose(
         mean_costs(st.K_expert), traces["expert"].rows.test_cost[:, 0], rtol=1e-12

@@ -249,3 +249,20 @@ def test_rollout_rejects_bad_input(kwargs, match):
     args.update(kwargs)
     with pytest.raises(ValueError, match=match):
         h.rollout(args["x0"], args["dU"], args["noise"], delay=delay)
+
+
+def test_column_batches_equal_vmap(rng):
+    """step, to_error and from_error on column batches [21, B] (and [21, S, N]) give vmap's
+    numbers: the layout the plant's test rollouts use."""
+    X = np.asarray(h.hover_target()) + 0.1 * rng.normal(size=(300, 21))
+    X[:, h.QUAT] = _random_quats(rng, 300)
+    dU, N = rng.normal(size=(300, 4)), rng.normal(size=(300, 6))
+    xs = np.asarray(h.funnel_target()[150])
+    rows = np.asarray(jax.vmap(h.step)(X, dU, N))
+    np.testing.assert_allclose(h.step(X.T, dU.T, N.T).T, rows, rtol=1e-14, atol=1e-14)
+    cube = h.step(X.T.reshape(21, 20, 15), dU.T.reshape(4, 20, 15), N.T.reshape(6, 20, 15))
+    np.testing.assert_allclose(np.asarray(cube).reshape(21, 300).T, rows, rtol=1e-14, atol=1e-14)
+    err = np.asarray(jax.vmap(h.to_error, in_axes=(0, None))(X, xs))
+    np.testing.assert_allclose(h.to_error(X.T, xs).T, err, rtol=1e-14, atol=1e-14)
+    back = np.asarray(jax.vmap(h.from_error, in_axes=(0, None))(err, xs))
+    np.testing.assert_allclose(h.from_error(err.T, xs).T, back, rtol=1e-14, atol=1e-14)

@@ -35,7 +35,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from loopid.algorithms.collect import policy_samples
-from loopid.algorithms.plant import Plant, Transitions, select
+from loopid.algorithms.plant import Plant, Transitions, noise_columns, select
 
 TEST_POLICIES = ("last", "best", "mixture")
 _TRAIN, _TEST, _SELECT = 1, 2, 3
@@ -142,7 +142,8 @@ def seed_keys(seeds) -> jax.Array:
 
 
 class TestNoise(NamedTuple):
-    """Per-seed test noise: ``test [n_test, horizon, 6]`` and, for ``best``, ``select``."""
+    """The test noise of every seed, ``test [horizon, n_noise, S, n_test]`` (the column layout of
+    :meth:`Plant.test_seeds`), and for ``best`` the selection noise ``select``, likewise."""
 
     test: jax.Array
     select: jax.Array
@@ -152,7 +153,7 @@ _NOISE_PROGRAMS: dict = {}
 
 
 def test_noise(plant: Plant, keys: jax.Array, n_test: int, test_policy: str) -> TestNoise:
-    """The test (and selection) noise of every seed, ``[S, n_test, horizon, 6]``.
+    """The test (and selection) noise of every seed, ``[horizon, n_noise, S, n_test]``.
 
     One compiled program per plant and shape, reused by every method of a run."""
     cache_key = (id(plant), n_test, test_policy == "best")
@@ -165,26 +166,34 @@ def test_noise(plant: Plant, keys: jax.Array, n_test: int, test_policy: str) -> 
                 return TestNoise(test, jnp.zeros((0,), test.dtype))
             return TestNoise(test, plant.test_noise(jax.random.fold_in(key, _SELECT), n_test))
 
-        cached = _NOISE_PROGRAMS[cache_key] = (plant, jax.jit(jax.vmap(one)))
+        def columns(keys):
+            return jax.tree_util.tree_map(noise_columns, jax.vmap(one)(keys))
+
+        cached = _NOISE_PROGRAMS[cache_key] = (plant, jax.jit(columns))
     return cached[1](keys)
 
 
-def _evaluate(plant: Plant, carry: _Carry, K, key, noise: TestNoise, n, test_policy: str):
-    """Test the iteration's policy; returns (costs [n_test], diverged [n_test], new carry)."""
+def _evaluate(plant: Plant, carry: _Carry, K, keys, noise: TestNoise, n, test_policy: str):
+    """Test every seed's policy ``K [S, horizon, m, n]``; returns (costs [S, n_test], diverged
+    [S, n_test], new carry)."""
     carry = carry._replace(K=K)
     if test_policy == "last":
-        costs, div = plant.test_costs(K, noise.test)
+        costs, div = plant.test_seeds(K, noise.test)
     elif test_policy == "best":
-        score = jnp.mean(plant.test_costs(K, noise.select)[0])
-        best_K = jnp.where(score < carry.best_cost, K, carry.best_K)
+        score = jnp.mean(plant.test_seeds(K, noise.select)[0], axis=1)
+        better = score < carry.best_cost
+        best_K = jnp.where(better[:, None, None, None], K, carry.best_K)
         carry = carry._replace(best_K=best_K, best_cost=jnp.minimum(score, carry.best_cost))
-        costs, div = plant.test_costs(best_K, noise.test)
+        costs, div = plant.test_seeds(best_K, noise.test)
     else:  # the uniform mixture: one of π_1..π_n drawn per test trajectory
-        history = carry.history.at[n - 1].set(K)
+        history = carry.history.at[:, n - 1].set(K)
         carry = carry._replace(history=history)
-        n_test = noise.test.shape[0]
-        pick = jax.random.randint(jax.random.fold_in(key, _SELECT), (n_test,), 0, n)
-        costs, div = jax.vmap(plant.test_one)(history[pick], noise.test)
+
+        def one_seed(hist, key, w):  # w [horizon, n_noise, n_test]
+            pick = jax.random.randint(jax.random.fold_in(key, _SELECT), (w.shape[-1],), 0, n)
+            return jax.vmap(plant.test_one, in_axes=(0, -1))(hist[pick], w)
+
+        costs, div = jax.vmap(one_seed, in_axes=(0, 0, 2))(history, keys, noise.test)
     return costs, div, carry
 
 
@@ -203,8 +212,9 @@ def make_cell(
 ):
     """Build ``(start, step)``, jitted, over all seeds at once, for one learning method.
 
-    Collection and the learner's update are vmapped over seeds; the solve and the test run seed
-    by seed inside the same compiled call (see ``seeds_in_turn``).
+    Collection and the learner's update are vmapped over seeds; the solve runs seed by seed (see
+    ``seeds_in_turn``) and the test trajectories of all seeds as one batch
+    (:meth:`Plant.test_seeds`), all inside the same compiled call.
 
     ``start(keys [S], noise) -> (carry, Row)`` solves and tests the initial model (iteration 1);
     ``step(carry, keys, noise, n, p, which=0) -> (carry, Row)`` runs iteration ``n`` with policy
@@ -219,17 +229,21 @@ def make_cell(
 
     def seeds_in_turn(f, *args):
         """``f`` on each seed in turn (``lax.map``): a solver's ``cond`` then skips the branch it
-        does not take, and each seed's test batch stays cache-sized."""
+        does not take (under ``vmap`` both branches would run)."""
         return jax.lax.map(lambda a: f(*a), args)
 
-    def solve_and_test(carry: _Carry, key, noise, n, p):
-        K, info = agent.policy(carry.learner)
+    def solve_and_test(carry: _Carry, keys, noise, n, p):
+        """Solve every seed's model, then test all the policies in one batch."""
+        K, info = seeds_in_turn(agent.policy, carry.learner)
         extra = {}
         if diagnostics is not None:
-            diag, extra = diagnostics.update(carry.diag, carry.learner, K, p, n)
+            diag, extra = seeds_in_turn(
+                lambda d, s, k: diagnostics.update(d, s, k, p, n), carry.diag, carry.learner, K
+            )
             carry = carry._replace(diag=diag)
-        costs, div, carry = _evaluate(plant, carry, K, key, noise, n, test_policy)
-        return carry, (jnp.mean(costs), jnp.median(costs), jnp.sum(div), info, extra)
+        costs, div, carry = _evaluate(plant, carry, K, keys, noise, n, test_policy)
+        stats = (jnp.mean(costs, axis=1), jnp.median(costs, axis=1), jnp.sum(div, axis=1))
+        return carry, (*stats, info, extra)
 
     def first(key):
         state = agent.init()
@@ -247,9 +261,8 @@ def make_cell(
     @jax.jit
     def start(keys, noise):
         carry = jax.vmap(first)(keys)
-        one, p0 = jnp.int32(1), jnp.float64(0.0)
-        carry, (mean, median, div, info, extra) = seeds_in_turn(
-            lambda c, k, w: solve_and_test(c, k, w, one, p0), carry, keys, noise
+        carry, (mean, median, div, info, extra) = solve_and_test(
+            carry, keys, noise, jnp.int32(1), jnp.float64(0.0)
         )
         zero = jnp.zeros_like(mean)
         count = jnp.zeros(mean.shape, jnp.int32)
@@ -283,9 +296,7 @@ def make_cell(
     @jax.jit
     def step(carry: _Carry, keys, noise, n, p, which=0):
         carry, stats = jax.vmap(learn, in_axes=(0, 0, None, None, None))(carry, keys, n, p, which)
-        carry, (mean, median, div, info, extra) = seeds_in_turn(
-            lambda c, k, w: solve_and_test(c, k, w, n, p), carry, keys, noise
-        )
+        carry, (mean, median, div, info, extra) = solve_and_test(carry, keys, noise, n, p)
         return carry, Row(mean, median, div, *stats, *info, extra)
 
     return start, step
@@ -361,13 +372,13 @@ def run_fixed_policy(
     noise = test_noise(plant, keys, n_test, "last")
 
     @jax.jit
-    @jax.vmap
     def test(w):
-        costs, div = plant.test_costs(K, w)
-        zero = jnp.float64(0.0)
+        S = w.shape[2]
+        costs, div = plant.test_seeds(jnp.broadcast_to(K, (S, *K.shape)), w)
+        zero, count = jnp.zeros(S), jnp.zeros(S, jnp.int32)
         return Row(
-            jnp.mean(costs), jnp.median(costs), jnp.sum(div), zero, zero, zero,
-            jnp.int32(0), jnp.int32(0), jnp.bool_(True), jnp.float64(0.0), {},
+            jnp.mean(costs, axis=1), jnp.median(costs, axis=1), jnp.sum(div, axis=1), zero, zero,
+            zero, count, count, jnp.ones(S, bool), zero, {},
         )  # fmt: skip
 
     row = test(noise.test)

@@ -96,6 +96,12 @@ class MDPPlant(NamedTuple):
         n = noise.shape[0]
         return jnp.full((n,), J), jnp.zeros((n,), bool)
 
+    def test_seeds(self, K: jax.Array, noise: jax.Array) -> tuple[jax.Array, jax.Array]:
+        """:meth:`test_costs` of every seed: ``K [S, …]``, ``noise [1, S, n_test]`` (the column
+        layout of :meth:`loopid.algorithms.plant.Plant.test_seeds`)."""
+        J = jax.vmap(lambda k: self.test_one(k, noise[:, 0, 0])[0])(K)
+        return jnp.broadcast_to(J[:, None], noise.shape[1:]), jnp.zeros(noise.shape[1:], bool)
+
 
 def mdp_plant(mdp: FiniteMDP, horizon: int) -> MDPPlant:
     """The plant of one (unbatched) finite MDP with rollouts of ``horizon`` steps."""

@@ -10,6 +10,11 @@ system, …) through the same rollouts, queries and tests. Conventions:
   relative to a target state, whose last entry is the constant 1 (so linear models and
   controllers are affine).
 - ``noise_sequence(key, T, std) -> [T, n_noise]``: the process noise of T steps.
+- ``columns``: True when ``step_delayed`` and ``to_error`` also take column batches (vectors
+  along the leading axis, any trailing batch axes: ``x [n_x, *B]``, ``fifo [d, m, *B]``, with
+  ``x_star`` unbatched). The plant then runs every test trajectory of every seed in one such
+  batch; otherwise it wraps the functions in ``jax.vmap`` over the trailing axes (same numbers,
+  slower on a CPU).
 """
 
 from collections.abc import Callable
@@ -27,3 +32,4 @@ class Dynamics(NamedTuple):
     noise_sequence: Callable[..., jax.Array]
     n_error: int
     n_action: int
+    columns: bool = False

@@ -64,34 +64,53 @@ FUNNEL_PAD = 100
 
 
 # ----------------------------------------------------------------------------- quaternions
+# Every function below takes its vectors along the leading axis and broadcasts over any trailing
+# batch axes (``q [4, *B]``): a single state is ``[21]``; a column batch ``[21, B]`` keeps each
+# component contiguous over the batch, which is how the test rollouts of all seeds run at once
+# (:mod:`loopid.algorithms.plant`). ``jax.vmap`` over a leading batch axis works as usual.
+
+
+def _column(v, like: jax.Array) -> jax.Array:
+    """The constant vector ``v [k]`` shaped ``[k, 1, …]`` to broadcast against ``like [*, *B]``."""
+    v = jnp.asarray(v)
+    return v.reshape(v.shape + (1,) * (like.ndim - 1))
+
+
 def quat_mul(p: jax.Array, q: jax.Array) -> jax.Array:
-    """Hamilton product p ⊗ q of quaternions stored scalar last ``[x, y, z, w]``; [4] -> [4]."""
-    pv, pw = p[:3], p[3]
-    qv, qw = q[:3], q[3]
-    vec = pw * qv + qw * pv + jnp.cross(pv, qv)
-    return jnp.concatenate([vec, (pw * qw - jnp.dot(pv, qv))[None]])
+    """Hamilton product p ⊗ q of quaternions stored scalar last ``[x, y, z, w]``; [4, *B]."""
+    px, py, pz, pw = p[0], p[1], p[2], p[3]
+    qx, qy, qz, qw = q[0], q[1], q[2], q[3]
+    return jnp.stack(
+        [
+            pw * qx + qw * px + (py * qz - pz * qy),
+            pw * qy + qw * py + (pz * qx - px * qz),
+            pw * qz + qw * pz + (px * qy - py * qx),
+            pw * qw - (px * qx + py * qy + pz * qz),
+        ]
+    )
 
 
 def quat_conj(q: jax.Array) -> jax.Array:
-    """Conjugate ``[−x, −y, −z, w]`` (the inverse of a unit quaternion); [4] -> [4]."""
+    """Conjugate ``[−x, −y, −z, w]`` (the inverse of a unit quaternion); [4, *B]."""
     return jnp.concatenate([-q[:3], q[3:]])
 
 
 def rotvec_to_quat(r: jax.Array) -> jax.Array:
-    """Unit quaternion of the rotation vector r [3] (rad), SPEC §3 step 3; -> [4].
+    """Unit quaternion [4, *B] of the rotation vector r [3, *B] (rad), SPEC §3 step 3.
 
     Vector part sin(|r|/2)·r/|r| (r/2 when |r| < 1e-4), scalar part sqrt(1 − |vec|²). The
     small-angle branch uses a safe norm inside ``jnp.where``, so gradients are finite at r = 0.
     """
-    n2 = jnp.dot(r, r)
+    n2 = r[0] * r[0] + r[1] * r[1] + r[2] * r[2]
     small = n2 < 1e-8  # |r| < 1e-4
     n = jnp.sqrt(jnp.where(small, 1.0, n2))
-    vec = jnp.where(small, 0.5 * r, (jnp.sin(0.5 * n) / n) * r)
-    return jnp.concatenate([vec, jnp.sqrt(1.0 - jnp.dot(vec, vec))[None]])
+    vec = jnp.where(small, 0.5, jnp.sin(0.5 * n) / n) * r
+    w = jnp.sqrt(1.0 - (vec[0] * vec[0] + vec[1] * vec[1] + vec[2] * vec[2]))
+    return jnp.concatenate([vec, w[None]])
 
 
 def quat_to_rotmat(q: jax.Array) -> jax.Array:
-    """Rotation matrix [3, 3] of the unit quaternion q [4] (scalar last), body to world."""
+    """Rotation matrix [3, 3, *B] of the unit quaternion q [4, *B] (scalar last), body to world."""
     x, y, z, w = q[0], q[1], q[2], q[3]
     return jnp.stack(
         [
@@ -104,7 +123,8 @@ def quat_to_rotmat(q: jax.Array) -> jax.Array:
 
 # ----------------------------------------------------------------------------- dynamics
 def step(x: jax.Array, du: jax.Array, noise: jax.Array) -> jax.Array:
-    """One explicit Euler step (SPEC §3 steps 1-9): x [21], du [4], noise [6] -> x_next [21].
+    """One explicit Euler step (SPEC §3 steps 1-9): x [21, *B], du [4, *B], noise [6, *B] ->
+    x_next [21, *B] (trailing batch axes optional; see "quaternions" above).
 
     ``noise`` = (world force n_F [N], body torque n_τ [N·m]), already scaled by the task's std.
     """
@@ -112,7 +132,7 @@ def step(x: jax.Array, du: jax.Array, noise: jax.Array) -> jax.Array:
     ned_dot, ned, pqr, q = x[NED_DOT], x[NED], x[PQR], x[QUAT]
     q_next = quat_mul(q, rotvec_to_quat(DT * pqr))
     Rm = quat_to_rotmat(q)
-    uvw = Rm.T @ ned_dot
+    uvw = [Rm[0, i] * ned_dot[0] + Rm[1, i] * ned_dot[1] + Rm[2, i] * ned_dot[2] for i in range(3)]
     f_body = MASS * jnp.stack(
         [
             DRAG_U * uvw[0],
@@ -120,22 +140,25 @@ def step(x: jax.Array, du: jax.Array, noise: jax.Array) -> jax.Array:
             LIFT + DRAG_W * uvw[2] + COLLECTIVE * u[3],
         ]
     )
-    gravity = jnp.array([0.0, 0.0, MASS * GRAVITY])
-    force = Rm @ f_body + gravity + noise[:3]
-    torque = INERTIA * (TORQUE_BIAS + RATE_DAMPING * pqr + CONTROL_GAIN * u[:3]) + noise[3:]
+    gravity = _column(np.array([0.0, 0.0, MASS * GRAVITY]), x)
+    Rf = [Rm[i, 0] * f_body[0] + Rm[i, 1] * f_body[1] + Rm[i, 2] * f_body[2] for i in range(3)]
+    force = jnp.stack(Rf) + gravity + noise[:3]  # R f_body + gravity + n_F
+    torque = INERTIA * (
+        _column(TORQUE_BIAS, x) + _column(RATE_DAMPING, x) * pqr + _column(CONTROL_GAIN, x) * u[:3]
+    )
     ned_dot_next = ned_dot + (DT / MASS) * force
-    pqr_next = pqr + (DT / INERTIA) * torque
+    pqr_next = pqr + (DT / INERTIA) * (torque + noise[3:])
     return jnp.concatenate([u, du, ned_dot_next, ned + DT * ned_dot, pqr_next, q_next])
 
 
 def step_delayed(
     x: jax.Array, fifo: jax.Array, du: jax.Array, noise: jax.Array
 ) -> tuple[jax.Array, jax.Array]:
-    """One step with actuation delay d = ``fifo.shape[0]`` (d may be 0: fifo [0, 4]).
+    """One step with actuation delay d = ``fifo.shape[0]`` (d may be 0: fifo [0, 4, *B]).
 
-    The queue is concat(fifo, du[None]) [d+1, 4]; the change applied (and recorded in x's
+    The queue is concat(fifo, du[None]) [d+1, 4, *B]; the change applied (and recorded in x's
     ``u_prev``/``du_prev``) is queue[0], commanded d steps ago; the new fifo is queue[1:].
-    Returns ``(x_next [21], fifo_next [d, 4])``.
+    Returns ``(x_next [21, *B], fifo_next [d, 4, *B])``.
     """
     queue = jnp.concatenate([fifo, du[None]], axis=0)
     return step(x, queue[0], noise), queue[1:]
@@ -209,19 +232,21 @@ def funnel_target(pads: bool = True) -> jax.Array:
 
 # ----------------------------------------------------------------------------- error coordinates
 def to_error(x: jax.Array, x_star: jax.Array) -> jax.Array:
-    """Error coordinates dx [21] of x [21] relative to x* [21] (see module docstring)."""
-    e = quat_mul(quat_conj(x_star[QUAT]), x[QUAT])[:3]
-    return jnp.concatenate([x[:17] - x_star[:17], e, jnp.ones(1)])
+    """Error coordinates dx [21, *B] of x [21, *B] relative to x* [21] or [21, *B] (module
+    docstring)."""
+    xs = x_star.reshape(x_star.shape + (1,) * (x.ndim - x_star.ndim))
+    e = quat_mul(quat_conj(xs[QUAT]), x[QUAT])[:3]
+    return jnp.concatenate([x[:17] - xs[:17], e, jnp.ones((1, *x.shape[1:]), x.dtype)])
 
 
 def from_error(dx: jax.Array, x_star: jax.Array) -> jax.Array:
-    """Inverse of :func:`to_error`: x [21] with q = q* ⊗ [e, sqrt(1 − |e|²)] (dx[20] ignored).
-
-    For |e| > 1 (not a rotation) the scalar part is clamped to 0 instead of becoming NaN.
+    """Inverse of :func:`to_error`: x [21, *B] with q = q* ⊗ [e, sqrt(1 − |e|²)] (dx[20]
+    ignored). For |e| > 1 (not a rotation) the scalar part is clamped to 0 instead of NaN.
     """
+    xs = x_star.reshape(x_star.shape + (1,) * (dx.ndim - x_star.ndim))
     e = dx[17:20]
-    dq = jnp.concatenate([e, jnp.sqrt(jnp.maximum(1.0 - jnp.dot(e, e), 0.0))[None]])
-    return jnp.concatenate([x_star[:17] + dx[:17], quat_mul(x_star[QUAT], dq)])
+    w = jnp.sqrt(jnp.maximum(1.0 - (e[0] * e[0] + e[1] * e[1] + e[2] * e[2]), 0.0))
+    return jnp.concatenate([xs[:17] + dx[:17], quat_mul(xs[QUAT], jnp.concatenate([e, w[None]]))])
 
 
 def target_increment(x_star: jax.Array, x_star_next: jax.Array) -> jax.Array:
