@@ -44,8 +44,9 @@ class Scenario:
       ftrl_lambda: λ of the FTRL regulariser (λ/√n)‖W‖²_F.
       test_policy: ``last``, ``best`` or ``mixture`` (SPEC §1).
       cost_cap: a test trajectory's total cost is capped here (and counted as diverged).
-      pg_horizon, pg_sigma, pg_step: the policy-gradient baseline's rollout length (steps),
-        perturbation std and normalised step size (see :mod:`loopid.algorithms.policy_gradient`).
+      pg_horizon, pg_sigma, pg_step: the policy-gradient baseline's longest rollout (steps),
+        perturbation size in action units and first trust radius in probing radii (see
+        :mod:`loopid.algorithms.policy_gradient`).
     """
 
     name: str
@@ -68,9 +69,9 @@ class Scenario:
     ftrl_lambda: float = 1e-3
     test_policy: str = "last"
     cost_cap: float = 1e8
-    pg_horizon: int = 25
+    pg_horizon: int = 600
     pg_sigma: float = 0.01
-    pg_step: float = 0.05
+    pg_step: float = 1.0
 
     def __post_init__(self) -> None:
         validate(self)
