@@ -91,7 +91,8 @@ def lin():
 @pytest.mark.parametrize("method", ["dagger-t", "batch-t"])
 def test_realisable_recovers_true_model(lin, method):
     carry, _ = lin.run(method)
-    W = jax.vmap(lin.learner.weights)(carry.learner)
+    W = jax.vmap(lin.learner.weights)(carry.learner.learner)
+    np.testing.assert_array_equal(W, carry.learner.W)  # the model the agent solved and scored
     A_hat, B_hat = to_matrices(lin.nominal, W)  # [S, n, n], [S, n, m]
     # 1100 samples of noise std 0.1: every entry within ~1e-2 (seen: max error 0.013)
     np.testing.assert_allclose(np.asarray(A_hat), np.broadcast_to(lin.Ae, A_hat.shape), atol=0.04)

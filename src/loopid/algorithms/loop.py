@@ -57,12 +57,16 @@ class Agent(NamedTuple):
     - ``policy(state) -> (K [horizon, m, n], SolverInfo)``: solve the optimal-control problem on
       the current model.
     - ``loss(state, batch) -> [b]``: per-row prediction loss of the current model.
+    - ``policies(states) -> (K [S, horizon, m, n], SolverInfo [S])`` (optional): ``policy`` of
+      every seed (a leading seed axis), in whatever way suits the solver (batched, or seed by
+      seed so that a ``cond`` skips the branch it does not take); default seed by seed.
     """
 
     init: Callable[[], Any]
     update: Callable[[Any, Transitions], Any]
     policy: Callable[[Any], tuple[jax.Array, SolverInfo]]
     loss: Callable[[Any, Transitions], jax.Array]
+    policies: Callable[[Any], tuple[jax.Array, SolverInfo]] | None = None
 
 
 class Row(NamedTuple):
@@ -234,7 +238,10 @@ def make_cell(
 
     def solve_and_test(carry: _Carry, keys, noise, n, p):
         """Solve every seed's model, then test all the policies in one batch."""
-        K, info = seeds_in_turn(agent.policy, carry.learner)
+        if agent.policies is not None:
+            K, info = agent.policies(carry.learner)
+        else:
+            K, info = seeds_in_turn(agent.policy, carry.learner)
         extra = {}
         if diagnostics is not None:
             diag, extra = seeds_in_turn(

@@ -13,6 +13,8 @@ features ``z = [Δx; Δu]`` and residual targets ``y = Δx' − (AΔx + BΔu)``;
 Policies are ``K: [horizon, m, n]`` with ``u_t = −K_t Δx_t``.
 """
 
+from typing import Any, NamedTuple
+
 import jax
 import jax.numpy as jnp
 
@@ -35,6 +37,15 @@ def finite_horizon_gains(A, B, Q, R, horizon: int) -> jax.Array:
     ``B [(T,) n, m]`` (no time axis: the same at every step), stage cost ``xᵀQx + uᵀRu`` and
     terminal cost ``xᵀQx`` (u_t = −K_t x_t)."""
     return tvlqr(A, B, Q, R, Q_T=Q, T=horizon).K
+
+
+class LinearAgentState(NamedTuple):
+    """The learner's state and the model it implies, ``W = learner.weights(learner)``, solved once
+    per update (a time-varying model has one ridge solve per step: the loss and the policy
+    share it)."""
+
+    learner: Any
+    W: jax.Array
 
 
 def linear_agent(
@@ -61,21 +72,24 @@ def linear_agent(
         y = residual_targets(model, batch.dx, batch.du, batch.dx_next, t)
         return z, y, t
 
-    def init():
-        return fitter.init(n + m, n)
+    def fitted(learner_state) -> LinearAgentState:
+        return LinearAgentState(learner_state, fitter.weights(learner_state))
 
-    def update(state, batch: Transitions):
+    def init():
+        return fitted(fitter.init(n + m, n))
+
+    def update(state: LinearAgentState, batch: Transitions) -> LinearAgentState:
         z, y, t = data(batch)
         if tv:
-            return fitter.update(state, z, y, batch.mask, index=t)
-        return fitter.update(state, z, y, batch.mask)
+            return fitted(fitter.update(state.learner, z, y, batch.mask, index=t))
+        return fitted(fitter.update(state.learner, z, y, batch.mask))
 
-    def loss(state, batch: Transitions):
-        W = fitter.weights(state)
-        return per_sample_loss(model, W, batch.dx, batch.du, batch.dx_next, batch.t if tv else None)
+    def loss(state: LinearAgentState, batch: Transitions):
+        t = batch.t if tv else None
+        return per_sample_loss(model, state.W, batch.dx, batch.du, batch.dx_next, t)
 
-    def policy(state):
-        A, B = to_matrices(model, fitter.weights(state))
+    def policy(state: LinearAgentState):
+        A, B = to_matrices(model, state.W)
         if tv:
             K = finite_horizon_gains(A, B, Q, R, horizon)
             ok = jnp.all(jnp.isfinite(K))
@@ -88,4 +102,9 @@ def linear_agent(
         K = jnp.where(jnp.all(jnp.isfinite(K)), K, 0.0)
         return jnp.broadcast_to(K, (horizon, m, n)), SolverInfo(sol.converged, sol.spectral_radius)
 
-    return Agent(init, update, policy, loss)
+    def policies(states: LinearAgentState):
+        # time-varying: no branch to skip, so one batched tvlqr; time-invariant: seed by seed, so
+        # the fallback's cond runs only for the seeds whose dlqr failed
+        return jax.vmap(policy)(states) if tv else jax.lax.map(policy, states)
+
+    return Agent(init, update, policy, loss, policies)
