@@ -216,9 +216,9 @@ def make_cell(
 ):
     """Build ``(start, step)``, jitted, over all seeds at once, for one learning method.
 
-    Collection and the learner's update are vmapped over seeds; the solve runs seed by seed (see
-    ``seeds_in_turn``) and the test trajectories of all seeds as one batch
-    (:meth:`Plant.test_seeds`), all inside the same compiled call.
+    Collection and the learner's update are vmapped over seeds; the solve runs as the agent's
+    ``policies`` says (default seed by seed, ``seeds_in_turn``) and the test trajectories of all
+    seeds as one batch (:meth:`Plant.test_seeds`), all inside the same compiled call.
 
     ``start(keys [S], noise) -> (carry, Row)`` solves and tests the initial model (iteration 1);
     ``step(carry, keys, noise, n, p, which=0) -> (carry, Row)`` runs iteration ``n`` with policy
