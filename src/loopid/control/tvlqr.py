@@ -67,43 +67,58 @@ def _backward(A, B, c, Q, q, R, r, M, Q_T, q_T, mu, *, regularized=True):
     """The recursion of the module docstring; all per-step arrays carry the time axis.
 
     ``regularized=False`` (μ = 0, plain tvlqr) uses the shorter, equivalent value update
-    P_t = H_xx - H_uxᵀK, p_t = h_x - H_uxᵀk.
-    """
-    m = B.shape[-1]
-    eye_m = jnp.eye(m, dtype=A.dtype)
+    P_t = H_xx - H_uxᵀK, p_t = h_x - H_uxᵀk, and leaves the iLQR sums ``hu_k``, ``kHk`` at 0.
 
-    def step(carry, xs):
-        P, p = carry
-        A, B, c, Q, q, R, r, M = xs
-        s = P @ c + p
-        PA = P @ A
-        PB = P @ B
-        Hxx = Q + A.T @ PA
-        Huu = R + B.T @ PB
-        Hux = M.T + B.T @ PA
-        hx = q + A.T @ s
-        hu = r + B.T @ s
-        Huu_reg = Huu + mu * eye_m
-        sol, ok = psd_solve(Huu_reg, jnp.concatenate([Hux, hu[:, None]], axis=1))
+    A ``fori_loop`` reads step t by dynamic index and writes the results in place, rather than a
+    ``lax.scan`` over the inputs: under ``jax.vmap`` scan moves the time axis of every input
+    ahead of the batch axis (a transposed copy of A, Q, … per call), which cost about a third
+    of the time of ``tvlqr`` vmapped over problems (issue 3).
+    """
+    T, n, m = B.shape
+    eye_m = jnp.eye(m, dtype=A.dtype)
+    zero = jnp.zeros((), A.dtype)
+
+    def step(i, carry):
+        t = T - 1 - i
+        Ks, ks, Ps, ps, hu_k, kHk, ok_all = carry
+        P, p = Ps[t + 1], ps[t + 1]
+        A_, B_, c_, Q_, q_, R_, r_, M_ = (x[t] for x in (A, B, c, Q, q, R, r, M))
+        s = P @ c_ + p
+        PA = P @ A_
+        PB = P @ B_
+        Hxx = Q_ + A_.T @ PA
+        Huu = R_ + B_.T @ PB
+        Hux = M_.T + B_.T @ PA
+        hx = q_ + A_.T @ s
+        hu = r_ + B_.T @ s
+        sol, ok = psd_solve(Huu + mu * eye_m, jnp.concatenate([Hux, hu[:, None]], axis=1))
         K, k = sol[:, :-1], sol[:, -1]
         if regularized:
             KtHuu = K.T @ Huu
             P_new = Hxx - Hux.T @ K - K.T @ Hux + KtHuu @ K
             p_new = hx - Hux.T @ k - K.T @ hu + KtHuu @ k
+            hu_k, kHk = hu_k + hu @ k, kHk + k @ Huu @ k
         else:
             P_new = Hxx - Hux.T @ K
             p_new = hx - Hux.T @ k
         P_new = 0.5 * (P_new + P_new.T)
-        out = (K, k, P_new, p_new, hu @ k, k @ Huu @ k, ok)
-        return (P_new, p_new), out
+        Ks, ks = Ks.at[t].set(K), ks.at[t].set(k)
+        Ps, ps = Ps.at[t].set(P_new), ps.at[t].set(p_new)
+        return Ks, ks, Ps, ps, hu_k, kHk, ok_all & ok
 
     Q_T = 0.5 * (Q_T + Q_T.T)
-    _, (K, k, P, p, hu_k, kHk, ok) = jax.lax.scan(
-        step, (Q_T, q_T), (A, B, c, Q, q, R, r, M), reverse=True
+    dt = A.dtype
+    init = (
+        jnp.zeros((T, m, n), dt),
+        jnp.zeros((T, m), dt),
+        jnp.zeros((T + 1, n, n), dt).at[T].set(Q_T),
+        jnp.zeros((T + 1, n), dt).at[T].set(q_T),
+        zero,
+        zero,
+        jnp.asarray(True),
     )
-    P = jnp.concatenate([P, Q_T[None]], axis=0)
-    p = jnp.concatenate([p, q_T[None]], axis=0)
-    return TVLQRSolution(K, k, P, p), _BackwardAux(jnp.sum(hu_k), jnp.sum(kHk), jnp.all(ok))
+    K, k, P, p, hu_k, kHk, ok = jax.lax.fori_loop(0, T, step, init)
+    return TVLQRSolution(K, k, P, p), _BackwardAux(hu_k, kHk, ok)
 
 
 @jax.jit
