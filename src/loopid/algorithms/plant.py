@@ -18,10 +18,12 @@ pure operations that Algorithm 1 of Ross & Bagnell (2012) needs:
   ``test_seeds(K, noise)`` does the same for every seed at once.
 
 Speed: the test trajectories are most of the loop's arithmetic (SPEC §4.4: 100 per seed and
-iteration). ``test_seeds`` runs all of them (every seed's) as one column batch, ``x [n_x, S,
-n_test]``, so each state component is a contiguous vector over the batch and one ``lax.scan``
-step advances every trajectory; on a CPU this is ~2–3x faster than ``vmap`` of one trajectory
-(whose batch axis ends up leading, with the 21 components as the short minor axis).
+iteration). ``test_seeds`` runs all of them (every seed's) as one column batch, ``x [n_x,
+S·n_test]``, so each state component is a contiguous vector over the batch and one ``lax.scan``
+step advances every trajectory; on a CPU this is 2.8x faster (``benchmarks/sim.py``) than
+``vmap`` of one trajectory (whose batch axis ends up leading, with the 21 components as the
+short minor axis). ``test_one`` stays the plain one-trajectory form: the mixture policy's path
+and the reference ``test_seeds`` is tested against.
 
 Policies are time-varying affine gains in error coordinates, ``K: [horizon, m, n]``: the error
 state ends with the constant 1, so the last column of ``K_t`` is the feedforward term.
