@@ -64,18 +64,35 @@ test, exact autodiff gradients over 200 noise draws):
 
 Limits: on hover it does **not** yet lower its test cost (issue 5's "lowers its cost over 20
 iterations of 500 samples" is a strict xfail in ``tests/experiments/test_policy_gradient.py``).
-Median over seeds after 20 iterations: ~4e7 (m = 500) and ~8e7 (m = 100) against π_1's 2.7e6,
-where the previous version hit the 1e8 cap at the first step. What is left, measured:
+Median over seeds after 20 iterations: ~4e7 (m = 500) and ~8e7 (m = 100) against π_1's 2.7e6.
+``examples/pg_gradient_quality.py`` measures where it fails, at π_1 (θ = 0), against the exact
+gradient of the test objective ``J_400`` (autodiff through the simulator, 200 noise draws):
 
-- *Too few probes for 84 gains.* m = 500 holds one antithetic pair (P = 1), so ``g`` is a random
-  direction signed by one noise draw; a per-noise 125-step gradient has cosine 0.33 with
-  ``∇J_μ`` (a descent direction for 93% of draws), the pair's FD direction far less.
-- *The acceptance test is one noise draw of a truncated objective.* It admits steps that are
-  worse on average over 400 steps. Typical culprits are the gain columns of coordinates that stay
-  at zero along π_1's rollouts (``u_prev``, ``du_prev``): their derivative is unidentifiable, the
-  min-norm solution still moves them (the probes have components there), and a gain ``k < 0`` on
-  ``u_prev`` is a slow instability ``(1 + |k|)^t`` that 25–125 steps barely show and 400 do.
-  Longer check rollouts (200 steps, with 50–100-step gradient pairs) did not fix it either.
+- *The direction is not the problem.* Along the direction of one iteration's finite-difference
+  estimate (m = 500: one antithetic pair of H = 125 steps), a line search on the exact ``J_400``
+  reaches a median ratio of 0.76 along ``−g`` and 0.97 along ``+g`` (20 draws); the exact
+  gradient of one noise draw's surrogate reaches 0.75, the exact ``∇E[log J_125]`` 0.58. The
+  raw-gain cosine of the estimate with ``∇J_400`` is ~0 (that gradient is dominated by the
+  position columns), yet the sign carries descent information.
+- *The step length is.* The best step along those directions is ~8e-4 in scaled coordinates
+  (median of 20), 25x below the first trust radius ``ρ_1 = σ√m = 0.02``, where every one of the
+  20 directions sends ``J_400`` to ~34x π_1's cost; at 0.005 the median is 2.7x. The acceptance
+  test (one 125-step draw, whose cost is ~1/700 of the 400-step cost: drift dominates late) lets
+  such steps through and then doubles the radius. Starting at ``pg_step = 0.04`` (the measured
+  best length) does not fix it either: the median still rises (2.4e6 -> 5.3e6, 4 seeds).
+- *The landscape is why.* π_1's gain is 1 on ``du_prev`` (Δu_t = −Δu_{t−1}), a marginally stable
+  loop: a positive offset k there grows as (1 + k)^t, which is what makes the useful steps so
+  short and the 125-step check blind to them.
+- *Tried, not kept* (scratch runs, 4 seeds, 50 test trajectories): parametrising the controller
+  as ``u = u* − θ φ(x)`` (gain 1 on ``u_prev``: the same test trajectories as π_1 at θ = 0);
+  ν_t restarts with ten 25-step pairs (the estimate's cosine with ``∇J_400`` is 0.01-0.05 in
+  the raw gains and the median rose to 1.8e7-4e7 for fixed steps 0.003-0.03); common random
+  numbers for all rollouts of an iteration with a memory of the last 52 one-sided probes and a
+  fixed step: median 3.07e6 -> 2.48e6 after 20 iterations, but one seed of four diverges
+  (1.1e7) and over 60 iterations the median climbs back to 4.2e6 (the last two in the
+  ``u = u* − θ φ(x)`` parametrisation).
+  A step rule that finds the ~1e-3 lengths without a 400-step check inside m = 500 is the open
+  problem.
 """
 
 from collections.abc import Callable
