@@ -4,7 +4,10 @@ Hover model sizes: 25 features ([Δx; Δu]), 21 targets, 100 new rows per iterat
 (vmapped). Reference: NumPy refit on the aggregated n = 10,000 rows, per seed, i.e. what
 "refit on everything so far" costs at iteration 100 without sufficient statistics. Goal: >= 10×.
 Extra rows: OGD update, and the funnel's time-varying FTRL (T = 599 steps, 500 rows) through its
-scatter-add fast path against the generic vmap-over-steps path.
+scatter-add fast path against the generic vmap-over-steps path; then the funnel at protocol scale
+(20 seeds vmapped, 500 rows each, T = 599): the update alone, the same update with the state
+donated (in place: what is left once the input state need not be copied), and the 20 x 599
+ridge solves alone, so the two halves of the funnel's learner cost can be tracked separately.
 
 Run: .venv/bin/python benchmarks/learners.py
 """
@@ -88,6 +91,33 @@ def main():
     t_fast = timeit(step_of(fast), s0, Xf, Yf, idx, reps=20)
     t_slow = timeit(step_of(slow), s0, Xf, Yf, idx, reps=5)
     rows.append(("indexed FTRL T=599, 500 rows (scatter)", t_fast, "vmap over steps", t_slow))
+
+    # Funnel at protocol scale: 20 seeds, update and solve timed apart (interleaved rounds).
+    up = jax.vmap(lambda s, X, Y, m, i: fast.update(s, X, Y, m, index=i))
+    Xs = jnp.asarray(rng.normal(size=(SEEDS, b, F)))
+    Ys = jnp.asarray(rng.normal(size=(SEEDS, b, TGT)))
+    ms = jnp.asarray(rng.random((SEEDS, b)) < 0.9)
+    ids = jnp.asarray(rng.integers(0, T, size=(SEEDS, b)), dtype=jnp.int32)
+    upd, upd_donated = jax.jit(up), jax.jit(up, donate_argnums=0)
+    solve = jax.jit(jax.vmap(fast.weights))
+    s20 = jax.vmap(lambda _: fast.init(F, TGT))(jnp.arange(SEEDS))
+    for k in range(5):  # a few iterations' data, so the solves see real statistics
+        s20 = upd(s20, Xs, Ys, ms, (ids + 37 * k) % T)
+    args = (Xs, Ys, ms, ids)
+    owned = upd_donated(jax.tree_util.tree_map(jnp.copy, s20), *args)
+    jax.block_until_ready((upd(s20, *args), solve(s20), owned))
+    times = {"update": [], "donated": [], "solve": []}
+    for _ in range(10):
+        for key, fn in (("update", lambda: upd(s20, *args)), ("solve", lambda: solve(s20))):
+            t0 = time.perf_counter()
+            jax.block_until_ready(fn())
+            times[key].append(time.perf_counter() - t0)
+        t0 = time.perf_counter()
+        owned = jax.block_until_ready(upd_donated(owned, *args))
+        times["donated"].append(time.perf_counter() - t0)
+    t_up, t_don, t_sol = (float(np.median(times[k])) for k in ("update", "donated", "solve"))
+    rows.append(("funnel update, 20 seeds x 500 rows", t_up, "same, state donated", t_don))
+    rows.append(("funnel solve, 20 x 599 ridge systems", t_sol, "funnel update (above)", t_up))
 
     print(f"device: {jax.devices()[0].device_kind}; max |W_jax - W_numpy| = {err:.1e}")
     print(f"{'case':42s} {'time':>10s}  {'reference':28s} {'ref time':>10s} {'ratio':>8s}")
