@@ -39,7 +39,17 @@ class FTRLState(NamedTuple):
 
 
 def ftrl_solve(ZZ, ZY, n, lam: float):
-    """Solve (ZZ + λ√n I) W = ZY for W [f, t]; zero when n = 0. Pure, jittable, vmappable."""
+    """Solve (ZZ + λ√n I) W = ZY for W [f, t]; zero when n = 0. Pure, jittable, vmappable.
+
+    Speed note (funnel: 20 seeds x 599 steps of 25 x 25 systems, 2-core CPU, ~230 ms): the
+    batched LAPACK calls (potrf, two trsm) are kept on purpose. Measured against them on XLA CPU:
+    ``jnp.linalg.solve`` and moving the ``n = 0`` select to the inputs are no faster; a
+    hand-written Cholesky with the batch on the last axis is 1.7x slower for the factor alone and
+    4-30x for the whole solve in the variants tried (each column step writes the trailing matrix
+    over all systems, so it is memory-bound; cutting the batch into chunks under ``lax.map`` pays
+    a per-op cost inside the loop; XLA duplicates the small elementwise chains into their many
+    consumers; ``jnp.sum`` over a leading axis lowers to a slow reduce).
+    """
     f = ZZ.shape[-1]
     n_safe = jnp.maximum(n, 1.0)
     if lam > 0:
