@@ -2,97 +2,89 @@
 descent is done directly on deterministic linear controller. We solve a linear system to estimate
 the gradient from sample cost with perturbed parameters").
 
-Parameters: a time-invariant gain offset ``θ [m, n]`` on the first policy of the model-based
-methods (``K_t = K⁽¹⁾_t + θ``, ``θ_1 = 0``), so every method starts from the same π_1 (SPEC §4.4:
-it barely acts, ~2.5e6 on hover). Iteration n ≥ 2 spends at most the m transitions of the other
-methods, in ``2C + 2P`` rollouts of ``H`` steps (:func:`budget`), all from the test's start μ:
+Parameters: a time-invariant gain offset ``θ [m, n]`` on a base gain ``K⁰`` (``K_t = K⁰_t + θ``,
+``θ_1 = 0``), only on the *free* entries (:func:`pg_base`). On hover, ``K⁰`` is the trim-holding
+controller ``u_t = u* − θ φ(x_t)`` (gain 1 on the ``u_prev`` error, 0 on ``du_prev``), whose test
+trajectories at θ = 0 are exactly π_1's (from μ, π_1 never acts: SPEC §4.4, ~2.5e6), and θ acts
+on the physical and constant coordinates (52 gains). Elsewhere ``K⁰`` is π_1's gain and all mn
+gains are free. Iteration n ≥ 2 spends at most the m transitions of the other methods, in
+``R = P + 2`` rollouts of ``H`` steps (:func:`budget`) that all start at the test's start μ and
+all see the same process noise ``w`` (common random numbers):
 
-1. *Reference.* C rollouts of the current gains under process noises ``w_1..w_C``. Their mean log
-   cost is the baseline of the acceptance test (4); the RMS ``s_j`` of each error coordinate
-   along them is the scale of coordinate j (floored at ``sqrt(nu_state_var)``).
-2. *Perturbations.* P antithetic pairs ``θ ± δ_i`` with ``δ_i = (σ/√n) ε_i diag(1/s)``,
-   ``ε_i ~ N(0, I)``; the two rollouts of a pair share their process noise (common random
-   numbers). In the scaled coordinates ``φ = θ diag(s)`` a perturbation is ``e_i = (σ/√n) ε_i``.
-3. *Gradient: the footnote's linear system.* The minimum-norm least-squares solution ``g`` of
-   ``⟨g, e_i⟩ = (log c_i⁺ − log c_i⁻) / 2``, i = 1..P (:func:`fd_gradient`); exact for a
-   quadratic objective, the projection of the gradient on the probed directions when P < mn.
+1. *Reference.* One rollout of ``θ``: its log cost ``ℓ_0`` and the RMS ``s_j`` of each error
+   coordinate along it (the scale of coordinate j, floored at ``sqrt(nu_state_var)``).
+2. *Probes.* P rollouts of ``θ + δ_i``, ``δ_i = (σ/√d) (ε_i ⊙ F) diag(1/s)``, ``ε_i ~ N(0, I)``,
+   F the free mask, d the number of free gains; each gives ``ℓ_i − ℓ_0``, exactly the
+   one-sided difference of the same noise draw's cost. Each (δ_i, ℓ_i − ℓ_0) enters a memory
+   of the last ``L = d`` probes.
+3. *Gradient: the footnote's linear system.* In the current scaled coordinates ``e = δ diag(s)``,
+   the minimum-norm least-squares ``g`` of ``⟨g, e_j⟩ = ℓ_j − ℓ_0^{(j)}`` over the memory
+   (:func:`fd_gradient`; empty slots are zero rows, which do not change the solution).
 4. *Conservative step.* The candidate ``θ' = θ − ρ (g/‖g‖) diag(1/s)`` is rolled out under the
-   reference noises ``w_1..w_C`` (independent of the noises that chose the direction); it is
-   accepted only if its mean log cost is below the reference's, and the trust radius ``ρ``
-   doubles after an acceptance and halves after a rejection.
+   same noise ``w``; it enters the memory as a probe, and is accepted only if its log cost is
+   below ``ℓ_0``. The trust radius ``ρ`` halves after a rejection and stays after an acceptance
+   (``ρ_1 = pg_step · σ√m``).
 
-Why, and what was wrong before (SPEC §2 asks for the *why*; numbers from hover, seeds of the
-test, exact autodiff gradients over 200 noise draws):
+Why (SPEC §2 asks for the *why*). Numbers from hover at π_1 (θ = 0), exact autodiff gradients of
+the test objective ``J_400`` (400 steps from μ) over 200 noise draws
+(``examples/pg_gradient_quality.py``), and scratch runs of 4-8 seeds with 50 test trajectories:
 
-- *(choice)* **Rollouts start at μ, the test's start state** (τ = 0, empty delay FIFO), because
-  the baseline is judged on ``J_μ`` (400 steps from μ). The previous version restarted, CPI
-  style, from ν_t-like states; ν_t puts errors of std 0.05 on ``u_prev``/``du_prev``, which a test
-  trajectory of π_1 never has (from μ, π_1 commands Δu ≡ 0), so the surrogate's gradient is about
-  correcting errors that never occur: its cosine with ``∇J_μ`` is −0.08 at H = 25 (−0.34 at
-  H = 250) and no step along it lowers ``J_μ``. From μ the cosine is 0.06 / 0.69 / 0.82 at
-  H = 25 / 100 / 250, and every one of these directions lowers ``J_μ`` (by ~45% at the best step).
-  CPI's restart distribution is a free input of CPI; μ is the one the comparison is made on.
-- *(choice)* **Rollouts as long as the budget allows**: ``H = min(pg_horizon, T, m // 4)`` with
-  ``pg_horizon = 600`` by default (no cap below the task horizon T): the longest rollouts that
-  leave one gradient pair and one reference/candidate pair; of the ``R = m // H`` rollouts a
-  quarter (at least one pair) check and the rest estimate the gradient. The rollouts estimate
-  the truncation ``J_{μ,H}`` of the test objective, and on hover the truncation turns the
-  gradient away from ``∇J_μ`` (cosines above). Hover: m = 100 gives H = 25, P = C = 1;
-  m = 500 gives H = 125, P = C = 1.
+- *(choice)* **Rollouts from μ, the test's start state** (τ = 0, empty delay FIFO), because the
+  baseline is judged on ``J_μ``. CPI-style restarts from ν_t-like states gave directions with
+  cosine −0.08 with ``∇J_μ`` (π_1's gains; ν_t perturbs ``u_prev``/``du_prev``, which π_1's test
+  trajectories never do), and 0.01-0.05 in the trim-holding parametrisation with ten 25-step
+  pairs. CPI's restart distribution is a free input of CPI; μ is the one the comparison uses.
+- *(choice)* **Rollouts as long as the budget allows**: ``H = min(pg_horizon, T, m // 4)``
+  (``pg_horizon = 600``: no cap below the task horizon), the longest that leave a reference, two
+  probes and a candidate. Hover: m = 500 gives H = 125, m = 100 gives H = 25; P = 2 in both.
+  The 125-step surrogate's exact gradient has cosine 0.78 with ``∇J_400``, and a line search
+  along it lowers ``J_400`` to 0.58 of π_1's.
+- *(choice)* **Trim-holding parametrisation on hover.** π_1's gain is 1 on ``du_prev``
+  (Δu_t = −Δu_{t−1}): a marginally stable loop, through which any offset on a slowly varying
+  coordinate is integrated into the controls. On that base the useful steps are tiny (the best
+  step along a one-pair estimate is ~8e-4 in scaled coordinates, median of 20) and runs that
+  lower the 125-step cost raise ``J_400`` (median 2.4e6 -> 4e7 over 20 iterations). The
+  controller ``u = u* − θ φ(x)`` is the same linear-policy class (a linear map of the error
+  state), flies the same test trajectories at θ = 0, and does not integrate: with everything
+  else equal, the run above stays at or below π_1 (below).
+- *(choice)* **Common random numbers for every rollout of an iteration.** With one noise draw
+  per antithetic pair, an estimate's cosine with the mean gradient was 0.01-0.05: the per-draw
+  noise dominates. On one shared draw the differences are deterministic in δ: the system of
+  step 3 recovers that draw's gradient exactly (cosine 1.000 with 120 probes, 0.43 with 10), and
+  one draw's exact gradient is a descent direction of ``J_400`` (best ratio 0.75, median of 10).
+- *(choice)* **A memory of the last L = d probes** (the footnote's linear system with as many
+  equations as unknowns once full): two new probes per iteration span 2 of 52 directions; the
+  memory averages over the last ~17 iterations' draws and directions. Old probes were taken at
+  nearby θ and under other noise, which the least squares averages.
 - *(choice)* **Scaled coordinates.** The error coordinates differ by orders of magnitude (RMS
-  along π_1's test trajectories: positions ~200 m, velocities ~30 m/s, rates and attitude ~0.3,
-  u_prev exactly 0), so ``∂J_μ/∂θ`` spans 1e8..1e11 across columns and a fixed step in raw gains
-  is meaningless: the old normalised step 0.05 sent the test cost to the 1e8 cap, the best step
-  along the exact ``∇J_μ`` is ~1e-4. Dividing column j by the scale ``s_j`` of coordinate j
-  (measured on the reference rollout, as random-search methods normalise linear-policy inputs)
-  makes a unit of ``φ`` one unit of action whatever the coordinate reads. The floor
-  ``sqrt(nu_state_var)`` is the problem's own scale of a state perturbation (ν_t's noise).
-- *(choice)* **Perturbation size** ``σ = pg_sigma = 0.01``, the std of ν's action noise
-  (``sqrt(nu_action_var)``): with the ``1/√n`` factor, a perturbation moves each action by about
-  σ, the size of action excitation the problem already uses.
-- *(choice)* **Log cost.** The costs span orders of magnitude (50 for L, 2.5e6 for π_1, the cap
-  1e8), so the differences ``c⁺ − c⁻`` have no fixed scale; ``log c`` is monotone (the acceptance
-  test and the minimiser are unchanged) and its differences are relative changes, the same at
-  2.5e6 as at 50. Costs are capped at ``cost_cap`` (non-finite counts as the cap) before the log.
-- *(choice)* **Conservative update (CPI's defining trait).** CPI moves only as far as its
-  estimate guarantees improvement; here the guarantee is an estimate on common random numbers: a
-  step is taken only if the candidate's rollout costs less than the reference's under the same
-  noise, so the policy never moves to a point its own estimate says is worse. The step length is a
-  trust region (the direction is only known to first order): it starts at the probing radius,
-  ``ρ_1 = pg_step · σ√m`` (``pg_step = 1``: the typical ``‖e_i‖``, where the linear model of
-  step 3 was fitted), doubles after an acceptance and halves after a rejection.
+  along π_1's rollouts: positions ~15 m, velocities ~2 m/s, rates and attitude ~0.05-0.3), so a
+  fixed step in raw gains is meaningless. Dividing column j by ``s_j`` makes a unit of ``φ = θ
+  diag(s)`` one unit of action; the floor ``sqrt(nu_state_var)`` is ν_t's state noise.
+- *(choice)* **Probe size** ``σ = pg_sigma = 0.01`` (ν's action std): a probe moves each action
+  by about σ. **Log cost**: costs span 50 (L) to 2.5e6 (π_1) to the cap 1e8; ``log c`` makes the
+  differences relative; costs are capped at ``cost_cap`` (non-finite counts as the cap).
+- *(choice)* **Conservative, non-growing step.** ``ρ_1 = pg_step · σ√m`` with ``pg_step = 0.1``:
+  in π_1's parametrisation the best step along an estimate was ~0.04 probing radii (above), and
+  at 1 probing radius (``ρ = 0.02``) every one of 20 estimated directions raised ``J_400`` ~34x.
+  A radius that also grows after acceptances (x2 or x1.5) sent 2-4 of 8 seeds to 1e7-4e7 within
+  20-60 iterations: the one-draw acceptance test (a 125-step cost is ~1/700 of the 400-step one;
+  drift dominates late) admits steps too long for ``J_400``. So ρ halves after a rejection and
+  never grows.
 
-Limits: on hover it does **not** yet lower its test cost (issue 5's "lowers its cost over 20
-iterations of 500 samples" is a strict xfail in ``tests/experiments/test_policy_gradient.py``).
-Median over seeds after 20 iterations: ~4e7 (m = 500) and ~8e7 (m = 100) against π_1's 2.7e6.
-``examples/pg_gradient_quality.py`` measures where it fails, at π_1 (θ = 0), against the exact
-gradient of the test objective ``J_400`` (autodiff through the simulator, 200 noise draws):
+Measured (``run("pg", scenario("hover", samples=500, iterations=I, seeds=8, ...))``, each seed's
+test noise the same at every iteration, so last/first is a paired ratio):
 
-- *The direction is not the problem.* Along the direction of one iteration's finite-difference
-  estimate (m = 500: one antithetic pair of H = 125 steps), a line search on the exact ``J_400``
-  reaches a median ratio of 0.76 along ``−g`` and 0.97 along ``+g`` (20 draws); the exact
-  gradient of one noise draw's surrogate reaches 0.75, the exact ``∇E[log J_125]`` 0.58. The
-  raw-gain cosine of the estimate with ``∇J_400`` is ~0 (that gradient is dominated by the
-  position columns), yet the sign carries descent information.
-- *The step length is.* The best step along those directions is ~8e-4 in scaled coordinates
-  (median of 20), 25x below the first trust radius ``ρ_1 = σ√m = 0.02``, where every one of the
-  20 directions sends ``J_400`` to ~34x π_1's cost; at 0.005 the median is 2.7x. The acceptance
-  test (one 125-step draw, whose cost is ~1/700 of the 400-step cost: drift dominates late) lets
-  such steps through and then doubles the radius. Starting at ``pg_step = 0.04`` (the measured
-  best length) does not fix it either: the median still rises (2.4e6 -> 5.3e6, 4 seeds).
-- *The landscape is why.* π_1's gain is 1 on ``du_prev`` (Δu_t = −Δu_{t−1}), a marginally stable
-  loop: a positive offset k there grows as (1 + k)^t, which is what makes the useful steps so
-  short and the 125-step check blind to them.
-- *Tried, not kept* (scratch runs, 4 seeds, 50 test trajectories): parametrising the controller
-  as ``u = u* − θ φ(x)`` (gain 1 on ``u_prev``: the same test trajectories as π_1 at θ = 0);
-  ν_t restarts with ten 25-step pairs (the estimate's cosine with ``∇J_400`` is 0.01-0.05 in
-  the raw gains and the median rose to 1.8e7-4e7 for fixed steps 0.003-0.03); common random
-  numbers for all rollouts of an iteration with a memory of the last 52 one-sided probes and a
-  fixed step: median 3.07e6 -> 2.48e6 after 20 iterations, but one seed of four diverges
-  (1.1e7) and over 60 iterations the median climbs back to 4.2e6 (the last two in the
-  ``u = u* − θ φ(x)`` parametrisation).
-  A step rule that finds the ~1e-3 lengths without a 400-step check inside m = 500 is the open
-  problem.
+- m = 500, 20 iterations, 300 test trajectories: median over seeds 2.58e6 -> 2.45e6; per-seed
+  ratios 0.68-1.09, 5 of 8 below 1. 100 iterations (100 test trajectories): 2.58e6 -> 2.34e6,
+  ratios 0.74-1.09, 6 of 8 below 1; it stalls after ~30 iterations as ρ shrinks.
+- m = 100 (H = 25), 50 iterations: the median *rises*, 2.58e6 -> 5.8e6 (one seed at 7.7e7): a
+  25-step check sees even less of ``J_400`` than a 125-step one.
+
+Limits: at m = 500 an improvement of ~5-10%, far from the paper's "~15000 after 100
+iterations"; at m = 100 (the paper: "only small improvement") it gets worse. ``J_400`` from π_1
+is dominated by the position drift that one short draw barely sees; a step rule that keeps
+moving without a 400-step check inside m is the open problem. On the funnel (π_1's gains as
+base, 84 free gains) the method runs without a measured study.
 """
 
 from collections.abc import Callable
@@ -109,15 +101,21 @@ _TRAIN = 1
 
 
 class PGState(NamedTuple):
-    """Per-seed state: the gain offset ``theta [m, n]`` and the trust radius ``radius``."""
+    """Per-seed state: the gain offset ``theta [m, n]``, the trust radius ``radius`` and the
+    probe memory: raw-gain probes ``probes [L, m, n]``, their log-cost differences ``diffs [L]``,
+    which slots hold one ``filled [L]``, and the next slot ``cursor`` (a ring buffer)."""
 
     theta: jax.Array
     radius: jax.Array
+    probes: jax.Array
+    diffs: jax.Array
+    filled: jax.Array
+    cursor: jax.Array
 
 
 class PGStep(NamedTuple):
-    """What one iteration did (per seed): the reference and candidate log costs on common noise,
-    whether the candidate was accepted, and the estimated gradient (scaled coordinates)."""
+    """What one iteration did (per seed): the reference and candidate log costs on the shared
+    noise, whether the candidate was accepted, and the estimated gradient (scaled coordinates)."""
 
     log_ref: jax.Array
     log_cand: jax.Array
@@ -125,35 +123,62 @@ class PGStep(NamedTuple):
     gradient: jax.Array
 
 
-def budget(samples: int, horizon: int, task_horizon: int) -> tuple[int, int, int]:
-    """Rollout length H, gradient pairs P and check pairs C for m = ``samples`` transitions per
-    iteration: ``H = min(horizon, task_horizon, m // 4)``, ``R = m // H`` rollouts,
-    ``C = max(1, R // 4)`` reference/candidate pairs and ``P = (R − 2C) // 2`` antithetic pairs
-    (so ``(2P + 2C)H ≤ m``)."""
+def budget(samples: int, horizon: int, task_horizon: int) -> tuple[int, int]:
+    """Rollout length H and probe count P for m = ``samples`` transitions per iteration:
+    ``H = min(horizon, task_horizon, m // 4)``, ``R = m // H`` rollouts: one reference, one
+    candidate and ``P = R − 2`` probes (so ``R·H ≤ m`` and ``P ≥ 2``)."""
     if samples < 4:
         raise ValueError(
-            f"the policy-gradient baseline needs samples >= 4 (one gradient pair and one "
-            f"reference/candidate pair of rollouts), got {samples}"
+            f"the policy-gradient baseline needs samples >= 4 (a reference, two probes and a "
+            f"candidate rollout), got {samples}"
         )
     if horizon < 1:
         raise ValueError(f"pg_horizon must be >= 1, got {horizon}")
     H = min(int(horizon), int(task_horizon), samples // 4)
-    R = samples // H
-    C = max(1, R // 4)
-    return H, (R - 2 * C) // 2, C
+    return H, samples // H - 2
 
 
-def fd_gradient(perturbations: jax.Array, half_differences: jax.Array) -> jax.Array:
+def fd_gradient(perturbations: jax.Array, differences: jax.Array) -> jax.Array:
     """The footnote's linear system: the minimum-norm least-squares ``g`` of
-    ``⟨g, δ_i⟩ = (c(θ + δ_i) − c(θ − δ_i)) / 2``; ``perturbations [P, ...]``, result ``[...]``."""
+    ``⟨g, δ_i⟩ = c(θ + δ_i) − c(θ)`` (or an antithetic half difference); ``perturbations
+    [P, ...]``, result ``[...]``. Zero rows (δ_i = 0, difference 0) do not change the result."""
     P = perturbations.shape[0]
-    g, *_ = jnp.linalg.lstsq(perturbations.reshape(P, -1), half_differences)
+    g, *_ = jnp.linalg.lstsq(perturbations.reshape(P, -1), differences)
     return g.reshape(perturbations.shape[1:])
+
+
+def pg_base(plant: Plant, K1: jax.Array, *, hold: bool) -> tuple[jax.Array, jax.Array]:
+    """The base gain ``K⁰ [T, m, n]`` and the free mask ``F [m, n]`` (module docstring).
+
+    ``hold``: the trim-holding controller ``u = u* − θ φ(x)`` of the helicopter's error
+    coordinates (gain I on the first m coordinates, the ``u_prev`` error, and 0 on the next m,
+    ``du_prev``), θ free on the rest; otherwise π_1's gain ``K1`` with every entry free."""
+    m, n = plant.n_action, plant.n_state
+    if not hold:
+        return K1, jnp.ones((m, n), jnp.float64)
+    if n < 2 * m + 1:
+        raise ValueError(
+            f"the trim-holding base needs error coordinates [u_prev (m), du_prev (m), ...], "
+            f"got n_state={n} for n_action={m}"
+        )
+    base = jnp.zeros_like(K1).at[:, :, :m].set(jnp.eye(m, dtype=K1.dtype))
+    return base, jnp.zeros((m, n), jnp.float64).at[:, 2 * m :].set(1.0)
+
+
+def init_state(free: jax.Array, radius: float) -> PGState:
+    """θ = 0, ``radius``, an empty memory of ``L`` = number of free gains."""
+    L = int(np.asarray(free).sum())
+    m, n = free.shape
+    return PGState(
+        jnp.zeros((m, n)), jnp.float64(radius), jnp.zeros((L, m, n)), jnp.zeros(L),
+        jnp.zeros(L, bool), jnp.int32(0),
+    )  # fmt: skip
 
 
 def make_pg_step(
     plant: Plant,
-    K1: jax.Array,
+    base: jax.Array,
+    free: jax.Array,
     *,
     samples: int,
     horizon: int,
@@ -163,16 +188,18 @@ def make_pg_step(
 ) -> Callable[[PGState, jax.Array], tuple[PGState, PGStep]]:
     """One conservative iteration ``(state, key) -> (state, PGStep)`` for one seed (module
     docstring, steps 1-4); pure, jittable, fixed shapes."""
-    H, P, C = budget(samples, horizon, plant.horizon)
+    H, P = budget(samples, horizon, plant.horizon)
     target = jnp.asarray(plant.task.target, jnp.float64)
     x0 = jnp.asarray(plant.task.x0, jnp.float64)
     Q, R = jnp.asarray(plant.task.Q), jnp.asarray(plant.task.R)
     m, n = plant.n_action, plant.n_state
-    d = int(plant.task.delay)
+    free = jnp.asarray(free, jnp.float64)
+    d = int(np.asarray(free).sum())
+    delay = int(plant.task.delay)
     std = float(plant.task.noise_std)
     floor = float(np.sqrt(nu_state_var)) if nu_state_var > 0 else 1.0
     cap = float(cost_cap)
-    fifo0 = jnp.zeros((d, m), jnp.float64)
+    fifo0 = jnp.zeros((delay, m), jnp.float64)
 
     def rollout(theta, noise):
         """Capped log cost of H steps from μ and the error states visited ``[H, n]``."""
@@ -181,7 +208,7 @@ def make_pg_step(
             x, fifo, total = carry
             w, tau = inp
             dx = plant.dynamics.to_error(x, target[tau])
-            du = -(K1[tau] + theta) @ dx
+            du = -(base[tau] + theta) @ dx
             total = total + dx @ Q @ dx + du @ R @ du
             x, fifo = plant.dynamics.step_delayed(x, fifo, du, w)
             return (x, fifo, total), dx
@@ -191,36 +218,40 @@ def make_pg_step(
         total = jnp.where(jnp.isfinite(total), jnp.minimum(total, cap), cap)
         return jnp.log(jnp.maximum(total, jnp.finfo(jnp.float64).tiny)), dxs
 
+    def remember(state: PGState, deltas, diffs) -> PGState:
+        k = deltas.shape[0]
+        slots = (state.cursor + jnp.arange(k, dtype=jnp.int32)) % d
+        return state._replace(
+            probes=state.probes.at[slots].set(deltas),
+            diffs=state.diffs.at[slots].set(diffs),
+            filled=state.filled.at[slots].set(True),
+            cursor=(state.cursor + k) % d,
+        )
+
     def step(state: PGState, key: jax.Array) -> tuple[PGState, PGStep]:
-        k_ref, k_eps, k_pairs = jax.random.split(key, 3)
-
-        def noise(k, count):
-            return jax.vmap(lambda kk: plant.dynamics.noise_sequence(kk, H, std))(
-                jax.random.split(k, count)
-            )
-
-        w_ref = noise(k_ref, C)
-        log_ref, dxs = jax.vmap(lambda w: rollout(state.theta, w))(w_ref)
-        rms = jnp.sqrt(jnp.mean(dxs**2, axis=(0, 1)))
+        k_noise, k_eps = jax.random.split(key)
+        w = plant.dynamics.noise_sequence(k_noise, H, std)
+        log_ref, dxs = rollout(state.theta, w)
+        rms = jnp.sqrt(jnp.mean(dxs**2, axis=0))
         scale = jnp.where(jnp.isfinite(rms), jnp.maximum(rms, floor), floor)
-        e = (sigma / np.sqrt(n)) * jax.random.normal(k_eps, (P, m, n), jnp.float64)
+        e = (sigma / np.sqrt(d)) * jax.random.normal(k_eps, (P, m, n), jnp.float64) * free
         delta = e / scale
-        w_pairs = noise(k_pairs, P)
-        plus = jax.vmap(lambda dl, w: rollout(state.theta + dl, w)[0])(delta, w_pairs)
-        minus = jax.vmap(lambda dl, w: rollout(state.theta - dl, w)[0])(delta, w_pairs)
-        g = fd_gradient(e, (plus - minus) / 2.0)
+        log_probe = jax.vmap(lambda dl: rollout(state.theta + dl, w)[0])(delta)
+        state = remember(state, delta, log_probe - log_ref)
+        rows = jnp.where(state.filled[:, None, None], state.probes * scale, 0.0)
+        g = fd_gradient(rows, jnp.where(state.filled, state.diffs, 0.0)) * free  # exact zeros
         norm = jnp.linalg.norm(g)
         usable = jnp.isfinite(norm) & (norm > 0)
         direction = jnp.where(usable, g / jnp.where(usable, norm, 1.0), 0.0)
-        candidate = state.theta - state.radius * direction / scale
-        log_cand = jax.vmap(lambda w: rollout(candidate, w)[0])(w_ref)
-        log_ref, log_cand = jnp.mean(log_ref), jnp.mean(log_cand)
+        step_ = -state.radius * direction / scale
+        log_cand = rollout(state.theta + step_, w)[0]
+        state = remember(state, step_[None], (log_cand - log_ref)[None])
         accepted = usable & jnp.isfinite(log_cand) & (log_cand < log_ref)
-        new = PGState(
-            jnp.where(accepted, candidate, state.theta),
-            jnp.where(accepted, 2.0 * state.radius, 0.5 * state.radius),
+        state = state._replace(
+            theta=jnp.where(accepted, state.theta + step_, state.theta),
+            radius=jnp.where(accepted, state.radius, 0.5 * state.radius),
         )
-        return new, PGStep(log_ref, log_cand, accepted, g)
+        return state, PGStep(log_ref, log_cand, accepted, g)
 
     return step
 
@@ -235,31 +266,34 @@ def run_policy_gradient(
     n_test: int,
     horizon: int = 600,
     sigma: float = 0.01,
-    step: float = 1.0,
+    step: float = 0.1,
+    hold: bool = False,
     nu_state_var: float = 0.0025,
     cost_cap: float = 1e8,
     progress: Callable[[int, Row], None] | None = None,
 ) -> Trace:
     """Run the baseline on every seed; the result has the shape of every other method's.
 
-    ``horizon``: the longest rollout (``pg_horizon``); ``sigma``: the perturbation's action
-    scale (``pg_sigma``); ``step``: the first trust radius in probing radii (``pg_step``)."""
+    ``horizon``: the longest rollout (``pg_horizon``); ``sigma``: the probe's action scale
+    (``pg_sigma``); ``step``: the first trust radius in probing radii (``pg_step``); ``hold``:
+    the trim-holding base (:func:`pg_base`) instead of π_1's gains."""
     if not (sigma > 0 and step > 0):
         raise ValueError(f"pg_sigma and pg_step must be > 0, got {sigma!r}, {step!r}")
-    H, P, C = budget(samples, horizon, plant.horizon)
-    used = (2 * P + 2 * C) * H
+    H, P = budget(samples, horizon, plant.horizon)
+    used = (P + 2) * H
     keys = seed_keys(seeds)
     K1, info = agent.policy(agent.init())
-    m, n = plant.n_action, plant.n_state
+    m = plant.n_action
+    base, free = pg_base(plant, K1, hold=hold)
     one_step = make_pg_step(
-        plant, K1, samples=samples, horizon=horizon, sigma=sigma,
+        plant, base, free, samples=samples, horizon=horizon, sigma=sigma,
         nu_state_var=nu_state_var, cost_cap=cost_cap,
     )  # fmt: skip
 
     def evaluate(theta, noise):
         """Every seed's test row; ``theta [S, m, n]``, noise in :meth:`Plant.test_seeds`' layout."""
         S = theta.shape[0]
-        costs, div = plant.test_seeds(K1[None] + theta[:, None], noise)
+        costs, div = plant.test_seeds(base[None] + theta[:, None], noise)
         zero = jnp.zeros(S)
         count = jnp.full(S, used, jnp.int32)  # every sample comes from the (perturbed) policy
         return Row(
@@ -275,7 +309,8 @@ def run_policy_gradient(
 
     noise = test_noise(plant, keys, n_test, "last").test
     S = keys.shape[0]
-    state = PGState(jnp.zeros((S, m, n)), jnp.full((S,), step * sigma * np.sqrt(m), jnp.float64))
+    one = init_state(free, step * sigma * np.sqrt(m))
+    state = jax.tree_util.tree_map(lambda a: jnp.broadcast_to(a, (S, *a.shape)), one)
     row = jax.jit(evaluate)(state.theta, noise)
     rows = [row]
     if progress:

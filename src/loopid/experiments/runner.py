@@ -99,10 +99,13 @@ def run(
         )
     agent = _agent(s, st)
     if method == "pg":
+        # hover: the trim-holding base flies π_1's test trajectories (π_1 never acts from μ);
+        # the funnel's π_1 acts, so its gains are the base there (policy_gradient docstring)
         return run_policy_gradient(
             st.plant, agent, seeds, iterations=s.iterations, samples=s.samples,
             n_test=s.test_trajectories, horizon=s.pg_horizon, sigma=s.pg_sigma, step=s.pg_step,
-            nu_state_var=s.nu_state_var, cost_cap=s.cost_cap, progress=progress,
+            hold=s.task in ("hover", "hover-delay"), nu_state_var=s.nu_state_var,
+            cost_cap=s.cost_cap, progress=progress,
         )  # fmt: skip
     nus, cell = _cell(s, st, agent)
     fractions = M.policy_fractions(method, s.iterations, dagger_fraction=s.dagger_fraction)

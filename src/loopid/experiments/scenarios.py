@@ -71,7 +71,7 @@ class Scenario:
     cost_cap: float = 1e8
     pg_horizon: int = 600
     pg_sigma: float = 0.01
-    pg_step: float = 1.0
+    pg_step: float = 0.1
 
     def __post_init__(self) -> None:
         validate(self)
