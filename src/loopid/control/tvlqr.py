@@ -73,9 +73,10 @@ def _backward(A, B, c, Q, q, R, r, M, Q_T, q_T, mu, *, regularized=True):
     iLQR sums ``hu_k``, ``kHk`` at 0.
 
     Per step the three Hessian blocks come from two matrix products on the stacked
-    [A_t B_t] (n × (n+m)): Y = P[A B], H = Yᵀ[A B] = [[AᵀPA, AᵀPB], [BᵀPA, BᵀPB]], and the value
-    update uses H_xu = AᵀPB (+ M) on the left, so no product contracts over the rows of its
-    left operand (XLA CPU runs those batched products about 1.5× slower than plain ones).
+    [A_t B_t] (n × (n+m)): H = [A B]ᵀ(P[A B]) = [[AᵀPA, AᵀPB], [BᵀPA, BᵀPB]], with [A B]ᵀ
+    built transposed when A_t, B_t are read, and the value update uses H_xu = AᵀPB (+ M) on the
+    left, so no product contracts over the rows of its left operand (XLA CPU runs those batched
+    products about 1.5× slower than plain ones).
 
     A ``fori_loop`` reads step t by dynamic index and writes the results in place, rather than a
     ``lax.scan`` over the inputs: under ``jax.vmap`` scan moves the time axis of every input
@@ -93,8 +94,8 @@ def _backward(A, B, c, Q, q, R, r, M, Q_T, q_T, mu, *, regularized=True):
         t = T - 1 - i
         Ks, ks, Ps, ps, P, p, hu_k, kHk, ok_all = carry
         AB = jnp.concatenate([A[t], B[t]], axis=1)  # [n, n+m]
-        Y = P @ AB
-        H = Y.T @ AB
+        ABt = jnp.concatenate([A[t].T, B[t].T], axis=0)  # [A B]ᵀ, read transposed from A, B
+        H = ABt @ (P @ AB)
         Hxx = Q[t] + H[:n, :n]
         Huu = R[t] + H[n:, n:]
         Hxu = H[:n, n:]  # = H_uxᵀ
@@ -102,7 +103,7 @@ def _backward(A, B, c, Q, q, R, r, M, Q_T, q_T, mu, *, regularized=True):
             Hxu = Hxu + M[t]
         if linear:
             s = p if c is None else P @ c[t] + p
-            h = s @ AB  # [Aᵀs; Bᵀs]
+            h = ABt @ s  # [Aᵀs; Bᵀs]
             hx, hu = h[:n], h[n:]
             if q is not None:
                 hx = hx + q[t]
