@@ -281,10 +281,19 @@ def _check_lqr_args(A, B, Q, R, N):
     return batch, n, m
 
 
+def _broadcast_batch(*xs):
+    """Broadcast the leading (batch) axes of matrices ``[..., r, c]`` to one batch shape."""
+    batch = tuple(np.broadcast_shapes(*(x.shape[:-2] for x in xs)))
+    return batch, [jnp.broadcast_to(x, batch + x.shape[-2:]) for x in xs]
+
+
 @partial(jax.jit, static_argnames=("max_iter",))
-def _dlqr(A, B, Q, R, N, max_iter=64, tol=1e-13, rtol_residual=1e-8) -> LQRSolution:
-    """Batched core: leading axes of all arguments already broadcast to one batch shape."""
-    batch = A.shape[:-2]
+def _dlqr(A, B, Q, R, N=None, max_iter=64, tol=1e-13, rtol_residual=1e-8) -> LQRSolution:
+    """Batched core, no checks: leading axes broadcast here (inside the jit: no eager dispatch
+    per argument); ``N=None`` is zero."""
+    if N is None:
+        N = jnp.zeros(A.shape[:-2] + B.shape[-2:], A.dtype)
+    batch, (A, B, Q, R, N) = _broadcast_batch(A, B, Q, R, N)
     f = partial(_dlqr_single, max_iter=max_iter, tol=tol, rtol_residual=rtol_residual)
     if not batch:
         return f(A, B, Q, R, N)
@@ -322,12 +331,10 @@ def dlqr(
     Shape checks always run (also on tracers, inside ``jit``/``vmap``/``scan``); symmetry and
     PSD checks run on concrete inputs only. Call it directly from jitted code.
     """
-    batch, n, m = _check_lqr_args(A, B, Q, R, N)
-    f64 = partial(jnp.asarray, dtype=jnp.float64)
-    if N is None:
-        N = jnp.zeros((n, m), dtype=jnp.float64)
-    args = [jnp.broadcast_to(f64(x), batch + f64(x).shape[-2:]) for x in (A, B, Q, R, N)]
-    return _dlqr(*args, max_iter=max_iter, tol=tol, rtol_residual=rtol_residual)
+    _check_lqr_args(A, B, Q, R, N)
+    A, B, Q, R = (jnp.asarray(x, dtype=jnp.float64) for x in (A, B, Q, R))
+    N = None if N is None else jnp.asarray(N, dtype=jnp.float64)
+    return _dlqr(A, B, Q, R, N, max_iter=max_iter, tol=tol, rtol_residual=rtol_residual)
 
 
 def _dlqr_affine_single(A, B, Q, R, max_iter, tol, rtol_residual) -> LQRSolution:
@@ -353,7 +360,7 @@ def _dlqr_affine_single(A, B, Q, R, max_iter, tol, rtol_residual) -> LQRSolution
 
 @partial(jax.jit, static_argnames=("max_iter",))
 def _dlqr_affine(A, B, Q, R, max_iter=64, tol=1e-13, rtol_residual=1e-8) -> LQRSolution:
-    batch = A.shape[:-2]
+    batch, (A, B, Q, R) = _broadcast_batch(A, B, Q, R)
     f = partial(_dlqr_affine_single, max_iter=max_iter, tol=tol, rtol_residual=rtol_residual)
     if not batch:
         return f(A, B, Q, R)
@@ -384,7 +391,7 @@ def dlqr_affine(
 
     Shapes as :func:`dlqr`; the last row of A must be [0, …, 0, 1] and the last row of B zero.
     """
-    batch, n, _ = _check_lqr_args(A, B, Q, R, None)
+    _, n, _ = _check_lqr_args(A, B, Q, R, None)
     if n < 2:
         raise ValueError(f"A must be at least 2x2 (state plus constant), got shape {jnp.shape(A)}")
     if is_concrete(A) and is_concrete(B):
@@ -396,6 +403,5 @@ def dlqr_affine(
         lastB = np.asarray(B)[..., -1, :]
         if not np.allclose(lastB, 0.0, rtol=0.0, atol=1e-12):
             raise ValueError(f"B's last row must be zero (constant coordinate), got {lastB}")
-    f64 = partial(jnp.asarray, dtype=jnp.float64)
-    args = [jnp.broadcast_to(f64(x), batch + f64(x).shape[-2:]) for x in (A, B, Q, R)]
-    return _dlqr_affine(*args, max_iter=max_iter, tol=tol, rtol_residual=rtol_residual)
+    A, B, Q, R = (jnp.asarray(x, dtype=jnp.float64) for x in (A, B, Q, R))
+    return _dlqr_affine(A, B, Q, R, max_iter=max_iter, tol=tol, rtol_residual=rtol_residual)
