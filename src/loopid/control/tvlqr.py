@@ -150,10 +150,22 @@ def _backward(A, B, c, Q, q, R, r, M, Q_T, q_T, mu, *, regularized=True):
     return TVLQRSolution(K, k, P, p), _BackwardAux(hu_k, kHk, ok)
 
 
-@jax.jit
-def _tvlqr(A, B, c, Q, q, R, r, M, Q_T, q_T) -> TVLQRSolution:
-    """Jitted core: every per-step argument already has the time axis (optional terms may be
-    None); no checks."""
+@partial(jax.jit, static_argnames=("T",))
+def _tvlqr(A, B, c, Q, q, R, r, M, Q_T, q_T, T) -> TVLQRSolution:
+    """Jitted core, no checks. A per-step argument without its time axis is broadcast here, inside
+    the jit (XLA then reads the one matrix at every step instead of a materialised [T, ...]
+    copy); optional terms may be None (left out of the trace), ``Q_T=None`` is zero."""
+
+    def full(x, core_ndim):
+        if x is None or x.ndim == core_ndim + 1:
+            return x
+        return jnp.broadcast_to(x, (T, *x.shape))
+
+    A, B, c, Q, q, R, r, M = (
+        full(x, k) for x, k in zip((A, B, c, Q, q, R, r, M), (2, 2, 1, 2, 1, 2, 1, 2), strict=True)
+    )
+    if Q_T is None:
+        Q_T = jnp.zeros(A.shape[-2:], A.dtype)
     sol, _ = _backward(A, B, c, Q, q, R, r, M, Q_T, q_T, 0.0, regularized=False)
     return sol
 
@@ -238,13 +250,8 @@ def tvlqr(
     check_psd("R", R)
     check_psd("Q_T", Q_T)
 
-    f64 = partial(jnp.asarray, dtype=jnp.float64)
+    def f64(x):  # absent optional terms stay None: left out of the trace
+        return None if x is None else jnp.asarray(x, dtype=jnp.float64)
 
-    def full(x, core):  # absent optional terms stay None: left out of the trace
-        return None if x is None else jnp.broadcast_to(f64(x), (T, *core))
-
-    args = [full(x, core) for x, core in per_step.values()]
-    A_, B_, Q_, R_, c_, q_, r_, M_ = args
-    Q_T = jnp.zeros((n, n), jnp.float64) if Q_T is None else f64(Q_T)
-    q_T = None if q_T is None else f64(q_T)
-    return _tvlqr(A_, B_, c_, Q_, q_, R_, r_, M_, Q_T, q_T)
+    A_, B_, Q_, R_, c_, q_, r_, M_ = (f64(x) for x, _ in per_step.values())
+    return _tvlqr(A_, B_, c_, Q_, q_, R_, r_, M_, f64(Q_T), f64(q_T), T=int(T))
