@@ -34,7 +34,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from loopid.algorithms.loop import Agent, Row, Trace, _masked_mean, _trace, seed_keys
+from loopid.algorithms.loop import Agent, Row, Trace, _trace, batch_losses, seed_keys
 from loopid.algorithms.model_based import linear_agent
 from loopid.algorithms.plant import Transitions, draw, select
 from loopid.learners import ftrl_least_squares
@@ -131,9 +131,8 @@ def make_host_cell(agent: Agent, *, samples: int, with_nu: bool = True) -> HostC
         from_nu = draw(nu, k_nu, samples) if with_nu else from_pol
         take = jax.random.bernoulli(k_mix, p, (samples,))
         batch = select(take, from_pol, from_nu)
-        loss_nu = _masked_mean(agent.loss(carry.learner, from_nu), from_nu.mask)
-        loss_pol = _masked_mean(agent.loss(carry.learner, from_pol), from_pol.mask)
-        loss_sum = carry.loss_sum + _masked_mean(agent.loss(carry.learner, batch), batch.mask)
+        loss_nu, loss_pol, loss_batch = batch_losses(agent, carry.learner, from_pol, from_nu, take)
+        loss_sum = carry.loss_sum + loss_batch
         learner = agent.update(carry.learner, batch)
         K, info = agent.policy(learner)
         online = loss_sum / (n - 1).astype(loss_sum.dtype)

@@ -136,6 +136,19 @@ def _masked_mean(values: jax.Array, mask: jax.Array) -> jax.Array:
     return jnp.where(count > 0, total / jnp.maximum(count, 1).astype(total.dtype), 0.0)
 
 
+def batch_losses(agent: Agent, learner, from_pol, from_nu, take: jax.Array):
+    """The model's mean loss, before the update, on the ν draws, on the policy draws and on the
+    batch ``select(take, from_pol, from_nu)``. ``agent.loss`` is per row, so each candidate set
+    is evaluated once and the batch's row losses are the same row-wise choice of them."""
+    rows_pol, rows_nu = agent.loss(learner, from_pol), agent.loss(learner, from_nu)
+    batch_mask = jnp.where(take, from_pol.mask, from_nu.mask)
+    return (
+        _masked_mean(rows_nu, from_nu.mask),
+        _masked_mean(rows_pol, from_pol.mask),
+        _masked_mean(jnp.where(take, rows_pol, rows_nu), batch_mask),
+    )
+
+
 def seed_keys(seeds) -> jax.Array:
     """One key per integer seed (``jax.random.key(seed)``), stacked ``[S]``."""
     seeds = np.asarray(seeds)
@@ -255,7 +268,8 @@ def make_cell(
 
     def first(key):
         state = agent.init()
-        K, _ = agent.policy(state)
+        K = jax.eval_shape(agent.policy, state)[0]  # iteration 1 of ``step`` solves it
+        K = jnp.zeros(K.shape, K.dtype)
         return _Carry(
             learner=state,
             K=K,
@@ -266,16 +280,7 @@ def make_cell(
             diag=diagnostics.init() if diagnostics is not None else (),
         )
 
-    @jax.jit
-    def start(keys, noise):
-        carry = jax.vmap(first)(keys)
-        carry, (mean, median, div, info, extra) = solve_and_test(
-            carry, keys, noise, jnp.int32(1), jnp.float64(0.0)
-        )
-        zero = jnp.zeros_like(mean)
-        count = jnp.zeros(mean.shape, jnp.int32)
-        row = Row(mean, median, div, zero, zero, zero, count, count, *info, extra)
-        return carry, row
+    init = jax.jit(jax.vmap(first))
 
     def draw_nu(which, key, from_pol):
         if not nus:
@@ -293,21 +298,35 @@ def make_cell(
         take = jax.random.bernoulli(k_mix, p, (samples,))
         batch = select(take, from_pol, from_nu)
 
-        loss_nu = _masked_mean(agent.loss(carry.learner, from_nu), from_nu.mask)
-        loss_pol = _masked_mean(agent.loss(carry.learner, from_pol), from_pol.mask)
-        loss_sum = carry.loss_sum + _masked_mean(agent.loss(carry.learner, batch), batch.mask)
+        loss_nu, loss_pol, loss_batch = batch_losses(agent, carry.learner, from_pol, from_nu, take)
+        loss_sum = carry.loss_sum + loss_batch
         carry = carry._replace(learner=agent.update(carry.learner, batch), loss_sum=loss_sum)
         online = loss_sum / (n - 1).astype(loss_sum.dtype)
         counts = (jnp.sum(take & batch.mask), jnp.sum(batch.mask))
         return carry, (loss_nu, loss_pol, online, *counts)
 
+    def learn_from(n):
+        """Iteration 1 collects nothing: the learning half is skipped (a ``cond`` on the
+        unbatched ``n``, so only the taken branch runs) and its statistics are zeros."""
+
+        def skip(carry, key, n, p, which):
+            stats = jax.eval_shape(learn, carry, key, n, p, which)[1]
+            return carry, jax.tree_util.tree_map(lambda a: jnp.zeros(a.shape, a.dtype), stats)
+
+        return lambda *args: jax.lax.cond(n > 1, learn, skip, *args)
+
     # the carry is donated: run_learning never reads the old one, and XLA then updates the
     # learner's sufficient statistics in place instead of copying them (~110 MB on the funnel)
     @functools.partial(jax.jit, donate_argnums=0)
     def step(carry: _Carry, keys, noise, n, p, which=0):
-        carry, stats = jax.vmap(learn, in_axes=(0, 0, None, None, None))(carry, keys, n, p, which)
+        in_axes = (0, 0, None, None, None)
+        carry, stats = jax.vmap(learn_from(n), in_axes=in_axes)(carry, keys, n, p, which)
         carry, (mean, median, div, info, extra) = solve_and_test(carry, keys, noise, n, p)
         return carry, Row(mean, median, div, *stats, *info, extra)
+
+    def start(keys, noise):
+        """Iteration 1: the initial model solved and tested (the same compiled ``step``)."""
+        return step(init(keys), keys, noise, jnp.int32(1), jnp.float64(0.0), jnp.int32(0))
 
     return start, step
 
