@@ -81,6 +81,8 @@ BAD = [
     (["reproduce", "--bogus"], "--bogus"),
     (["reproduce", "--seeds", "0"], "seeds"),
     (["reproduce", "--executor", "spark"], "'spark'"),
+    (["reproduce", "--workers", "0"], "--workers"),
+    (["run", "hover", "--workers", "2", "--executor", "ray"], "--workers"),
     (["plot", "{dir}"], "results.parquet"),
     (["plot", "{corrupt}"], "not a readable Parquet table"),
 ]
@@ -213,6 +215,18 @@ def test_killed_run_resumes_to_the_same_table(tmp_path, cache, quick):
     r = cli(*args[:-1], "--samples", "50", "--out", killed, cache=cache)
     assert r.returncode == 2 and "different configuration" in r.stderr
     assert pq.read_table(killed / "results.parquet").equals(expected)
+
+
+@pytest.mark.slow
+def test_worker_processes_give_the_in_process_table(tmp_path, cache, quick):
+    args = ["run", "hover", "--methods", "expert,batch-t", "--seeds", "2", "--iterations", "2",
+            "--test-trajectories", "10", "--quiet"]  # fmt: skip
+    r = cli(*args, "--workers", "1", "--out", tmp_path / "one", cache=cache)
+    assert r.returncode == 0, r.stderr
+    r = cli(*args, "--workers", "2", "--out", tmp_path / "two", cache=cache)
+    assert r.returncode == 0, r.stderr
+    one = pq.read_table(tmp_path / "one" / "results.parquet")
+    assert pq.read_table(tmp_path / "two" / "results.parquet").equals(one)
 
 
 @pytest.mark.slow

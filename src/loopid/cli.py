@@ -1,12 +1,12 @@
 """The ``loopid`` command line (typer).
 
 - ``loopid reproduce [--out DIR] [--seeds N] [--quick] [--quiet] [--executor local|ray]
-  [--ray-address ADDR]``: every panel of the paper's Figure 2 and every method, at protocol
-  scale (``--quick``: every panel and method at 2 seeds and 4 iterations, a smoke run).
+  [--ray-address ADDR] [--workers N]``: every panel of the paper's Figure 2 and every method,
+  at protocol scale (``--quick``: every panel and method at 2 seeds and 4 iterations, a smoke run).
 - ``loopid run SCENARIO [--methods a,b] [--seeds N] [--iterations N] [--samples N]
   [--test-trajectories N] [--config FILE] [--out DIR] [--quiet] [--executor local|ray]
-  [--ray-address ADDR]``: one panel (or part of it). ``--config`` is a TOML file of scenario
-  fields (and ``methods``); options given on the command line win over it.
+  [--ray-address ADDR] [--workers N]``: one panel (or part of it). ``--config`` is a TOML
+  file of scenario fields (and ``methods``); options given on the command line win over it.
   ``loopid run gym --config FILE``: any Gymnasium environment
   (:mod:`loopid.experiments.gym_config`).
 - ``loopid plot DIR``: remake ``figure.png`` and ``report.md`` from ``DIR/results.parquet``.
@@ -156,7 +156,18 @@ def _finish(out: Path, table, t0: float, output: _Output) -> None:
     output.log(f"wrote {table.num_rows} rows, figure.png and report.md to {out}/")
 
 
-def _execute(out, scenarios, methods, *, quiet, executor, ray_address, t0) -> None:
+def _workers(executor: str, workers: int | None) -> int:
+    """``--workers``: the local executor's worker processes (default: the machine's CPUs)."""
+    from loopid.experiments.executors import check_workers, default_workers
+
+    if workers is None:
+        return default_workers() if executor == "local" else 1
+    if executor != "local":
+        raise ValueError(f"--workers {workers} applies to --executor local, not {executor!r}")
+    return check_workers(workers)
+
+
+def _execute(out, scenarios, methods, *, quiet, executor, ray_address, workers, t0) -> None:
     from loopid.experiments.execute import run_cells
 
     output = _Output(quiet)
@@ -167,6 +178,7 @@ def _execute(out, scenarios, methods, *, quiet, executor, ray_address, t0) -> No
             methods,
             executor_name=executor,
             ray_address=ray_address,
+            workers=workers,
             on_cell=output.on_cell,
             log=output.log,
         )
@@ -175,7 +187,13 @@ def _execute(out, scenarios, methods, *, quiet, executor, ray_address, t0) -> No
     _finish(out, table, t0, output)
 
 
-EXECUTOR = typer.Option("local", "--executor", help="local (in this process) or ray.")
+EXECUTOR = typer.Option("local", "--executor", help="local (this machine) or ray.")
+WORKERS = typer.Option(
+    None,
+    "--workers",
+    help="local: worker processes, one cell each at a time (default: the machine's CPUs; "
+    "1 = in this process).",
+)
 RAY_ADDRESS = typer.Option(
     None, "--ray-address", help="Join this Ray cluster (default: start a local one)."
 )
@@ -199,6 +217,7 @@ def run(
     quiet: bool = QUIET,
     executor: str = EXECUTOR,
     ray_address: str = RAY_ADDRESS,
+    workers: int = WORKERS,
 ) -> None:
     """Run one scenario's methods on every seed into a run directory."""
     t0 = time.perf_counter()
@@ -210,6 +229,7 @@ def run(
     if scenario == "gym":
         given = [f"--{k.replace('_', '-')}" for k in options] + (["--methods"] if methods else [])
         given += ["--executor"] if executor != "local" or ray_address else []
+        given += ["--workers"] if workers is not None else []
         if given:
             raise ValueError(
                 f"loopid run gym takes its settings from --config; remove {', '.join(given)}"
@@ -226,6 +246,7 @@ def run(
     from loopid.experiments.scenarios import scenario as make_scenario
 
     check_executor(executor, ray_address)
+    workers = _workers(executor, workers)
     fields = read_config(config) if config is not None else {}
     chosen = fields.pop("methods", None)
     if scenario in MDP_SCENARIOS:
@@ -247,6 +268,7 @@ def run(
         quiet=quiet,
         executor=executor,
         ray_address=ray_address,
+        workers=workers,
         t0=t0,
     )
 
@@ -271,6 +293,7 @@ def reproduce(
     quiet: bool = QUIET,
     executor: str = EXECUTOR,
     ray_address: str = RAY_ADDRESS,
+    workers: int = WORKERS,
 ) -> None:
     """The paper's Figure 2: hover, hover with delay 1 and the nose-in funnel, every method."""
     from loopid.experiments.executors import check_executor
@@ -278,6 +301,7 @@ def reproduce(
 
     t0 = time.perf_counter()
     check_executor(executor, ray_address)
+    workers = _workers(executor, workers)
     changes = dict(QUICK) if quick else {}
     if seeds is not None:
         changes["seeds"] = seeds
@@ -289,6 +313,7 @@ def reproduce(
         quiet=quiet,
         executor=executor,
         ray_address=ray_address,
+        workers=workers,
         t0=t0,
     )
     # the extra figure: the finite-MDP study, where the paper's bounds are exact
@@ -303,6 +328,7 @@ def reproduce(
         quiet=quiet,
         executor=executor,
         ray_address=ray_address,
+        workers=workers,
         t0=t0,
     )
 

@@ -15,7 +15,13 @@ import pyarrow as pa
 
 import loopid
 from loopid.algorithms.loop import Row
-from loopid.experiments.executors import Job, check_executor, executor, ray_session
+from loopid.experiments.executors import (
+    Job,
+    check_executor,
+    check_workers,
+    executor,
+    ray_session,
+)
 from loopid.experiments.results import trace_table, with_metadata
 from loopid.experiments.rundir import RunDir
 from loopid.experiments.runner import check_methods, run
@@ -87,6 +93,7 @@ def run_cells(
     *,
     executor_name: str = "local",
     ray_address: str | None = None,
+    workers: int = 1,
     on_cell: ProgressFactory | None = None,
     log: Callable[[str], None] | None = None,
 ) -> pa.Table:
@@ -94,11 +101,13 @@ def run_cells(
 
     ``seeds`` defaults to ``range(scenario.seeds)`` of the first scenario (all scenarios of one
     run share the seeds). ``executor_name``: ``local`` or ``ray`` (``ray_address`` joins a
-    cluster). Each finished cell is saved at once (atomically); ``results.parquet`` is
-    rewritten after every cell.
+    cluster). ``workers``: the local executor's worker processes (1: in this process). Each
+    finished cell is saved at once (atomically); ``results.parquet`` is rewritten after every
+    cell.
     """
     seeds = check_cells(scenarios, methods, seeds)
     check_executor(executor_name, ray_address)
+    options = {"workers": check_workers(workers)} if executor_name == "local" else {}
     if executor_name == "ray":
         import ray
 
@@ -118,7 +127,7 @@ def run_cells(
                     log(f"{s.name} / {m}: already finished, skipped")
             else:
                 jobs.append(Job(s, m))
-    for job, table in executor(executor_name)(jobs, seeds, run_cell, on_cell=on_cell):
+    for job, table in executor(executor_name)(jobs, seeds, run_cell, on_cell=on_cell, **options):
         rd.save_cell(job.scenario.name, job.method, table)
         rd.write_results(order)
         if log:

@@ -1,0 +1,83 @@
+"""The local executor's worker processes: order, progress, results, failures (no JAX work).
+
+The cell function here stands in for :func:`loopid.experiments.execute.run_cell`: it reports
+every iteration and returns a small table, so the pool's mechanics are tested in seconds; the
+CLI test ``test_worker_processes_give_the_in_process_table`` checks real cells.
+"""
+
+import os
+
+import numpy as np
+import pyarrow as pa
+import pytest
+
+from loopid.experiments.executors import Job, check_workers, run_local, spread
+from loopid.experiments.scenarios import scenario
+
+
+def fake_cell(s, method, seeds, progress=None):
+    """Iterations 1..N reported, then a table naming the cell and the process that ran it."""
+    if method == "boom":
+        raise RuntimeError(f"cell {s.name}/{method} failed")
+    for n in range(1, s.iterations + 1):
+        if progress is not None:
+            progress(n, {"n": np.asarray(n)})
+    return pa.table({"cell": [f"{s.name}/{method}"], "pid": [os.getpid()], "seeds": [len(seeds)]})
+
+
+def jobs(methods=("a", "b", "c"), iterations=3):
+    return [
+        Job(scenario(name, iterations=iterations), m)
+        for name in ("hover", "hover-delay", "funnel")
+        for m in methods
+    ]
+
+
+def test_spread_puts_each_scenarios_first_cell_first():
+    js = jobs()
+    order = spread(js)
+    assert sorted(order) == list(range(len(js)))
+    assert [js[i].scenario.name for i in order[:3]] == ["hover", "hover-delay", "funnel"]
+    assert [js[i].method for i in order[:3]] == ["a", "a", "a"]
+    assert order[3:] == [1, 2, 4, 5, 7, 8]  # then the rest in the given order
+
+
+@pytest.mark.parametrize("bad", [0, -1, 1.5, "2", True])
+def test_check_workers_names_the_bad_value(bad):
+    with pytest.raises(ValueError, match="--workers"):
+        check_workers(bad)
+
+
+def test_workers_compute_every_cell_once_with_its_progress():
+    js = jobs()
+    seen: dict = {}
+
+    def on_cell(name, method, iterations):
+        assert (name, method) not in seen  # called once per cell, when it starts
+        seen[(name, method)] = []
+        return lambda n, row: seen[(name, method)].append((n, int(row["n"])))
+
+    done = list(run_local(js, [0, 1], fake_cell, on_cell=on_cell, workers=2))
+
+    def key(j):
+        return (j.scenario.name, j.method)
+
+    assert sorted(key(j) for j, _ in done) == sorted(map(key, js))
+    for job, table in done:
+        assert table.column("cell").to_pylist() == [f"{job.scenario.name}/{job.method}"]
+        assert table.column("seeds").to_pylist() == [2]
+        # every iteration's progress arrived before the cell was handed over, in order
+        assert seen[(job.scenario.name, job.method)] == [(n, n) for n in (1, 2, 3)]
+    pids = {table.column("pid")[0].as_py() for _, table in done}
+    assert os.getpid() not in pids and 1 <= len(pids) <= 2
+
+
+def test_one_worker_runs_in_this_process():
+    done = list(run_local(jobs(methods=("a",)), [0], fake_cell, workers=1))
+    assert [t.column("pid")[0].as_py() for _, t in done] == [os.getpid()] * 3
+
+
+def test_a_failing_cell_raises_in_the_caller():
+    js = jobs(methods=("a", "boom"), iterations=1)
+    with pytest.raises(RuntimeError, match="boom"):
+        list(run_local(js, [0], fake_cell, workers=2))
