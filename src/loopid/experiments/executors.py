@@ -164,16 +164,20 @@ def _init_worker(cache_dir: str, messages, parent: int) -> None:
 
 
 def _pool_cell(cell: CellFunction, index: int, s: Scenario, method: str, seeds) -> pa.Table:
-    """One cell in a worker; progress goes back to the parent as ``(index, n, row)``."""
+    """One cell in a worker; progress goes back to the parent as ``(index, n, row)``, with
+    ``n = 0`` (no row) when the cell starts."""
     import jax
     import numpy as np
 
     messages = _WORKER.get("messages")
+    if messages is None:
+        return cell(s, method, seeds)
 
     def progress(n, row):
         messages.put((index, n, jax.tree_util.tree_map(np.asarray, row)))
 
-    return cell(s, method, seeds, progress=progress if messages is not None else None)
+    messages.put((index, 0, None))  # started: the parent shows its bar from now on
+    return cell(s, method, seeds, progress=progress)
 
 
 def _run_pool(jobs, seeds, cell, on_cell, workers) -> Iterator[tuple[Job, pa.Table]]:
@@ -194,7 +198,7 @@ def _run_pool(jobs, seeds, cell, on_cell, workers) -> Iterator[tuple[Job, pa.Tab
             s = jobs[index].scenario
             callbacks[index] = on_cell(s.name, jobs[index].method, s.iterations)
         seen[index] = n
-        if callbacks[index] is not None:
+        if n > 0 and callbacks[index] is not None:
             callbacks[index](n, row)
 
     def drain(until: int | None = None) -> None:
