@@ -6,7 +6,9 @@
   ``workers > 1``: that many worker processes (standard library ``concurrent.futures``, spawned),
   each running one cell at a time, in the order of :func:`spread`; a worker that meets a program
   another one already compiled loads it from the shared persistent cache. One XLA CPU process
-  keeps about 1.5 of 2 cores busy, so two workers finish a protocol run about 1.5x sooner.
+  keeps about 1.5 of 2 cores busy, and two share the cores' caches: on 2 cores two workers
+  finish a protocol run about 1.1-1.2x sooner (a funnel cell runs at 2/3 speed beside another),
+  and compilation-bound runs (``--quick``) gain nothing.
   (Cells on several threads of one process were tried and dropped: concurrent executions on
   XLA's CPU client deadlock when its thread pool is as small as the machine's two cores.)
 - ``ray`` (extra ``[ray]``): each cell is one Ray task (``num_cpus=1``) calling the same cell
