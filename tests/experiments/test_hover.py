@@ -96,7 +96,7 @@ def test_expert_and_learners_share_the_test_noise(traces):
     """The expert's and π_1's reported costs are their costs on the loop's test noise of each
     seed (an independent evaluation, trajectory by trajectory, not through the runner)."""
     st = setup(SCENARIO)
-    agent = _agent(SCENARIO, st)
+    agent = _agent(SCENARIO)
     K1, _ = jax.jit(agent.policy)(agent.init())
     n_test = SCENARIO.test_trajectories
     columns = loop_test_noise(st.plant, seed_keys(np.arange(SCENARIO.seeds)), n_test, "last").test

@@ -81,7 +81,7 @@ def test_trim_holding_base_flies_pi1s_test_trajectories():
     while its gains differ (it holds the trim instead of cancelling the last change)."""
     s = scenario("hover", seeds=1, test_trajectories=3)
     st = setup(s)
-    agent = _agent(s, st)
+    agent = _agent(s)
     K1, _ = agent.policy(agent.init())
     base, free = pg_base(st.plant, K1, hold=True)
     assert not np.allclose(base, K1)
@@ -101,7 +101,7 @@ def test_conservative_step_never_accepts_a_worse_estimate():
     every rollout enters the memory (P probes and the candidate per iteration)."""
     s = SCENARIO
     st = setup(s)
-    agent = _agent(s, st)
+    agent = _agent(s)
     K1, _ = agent.policy(agent.init())
     base, free = pg_base(st.plant, K1, hold=True)
     one = make_pg_step(

@@ -61,11 +61,14 @@ def _setup_cached(
     return Setup(plant, expert_gains(t), nominal_model(plant))
 
 
+def _setup_key(s: Scenario) -> tuple:
+    """The scenario fields that determine its :class:`Setup` (hashable)."""
+    return (s.task, s.noise_std, s.delay, s.pads, s.stop_norm, s.nu_pending, s.cost_cap)
+
+
 def setup(s: Scenario) -> Setup:
     """The shared :class:`Setup` of a scenario (cached: the expert is computed once per task)."""
-    return _setup_cached(
-        s.task, s.noise_std, s.delay, s.pads, s.stop_norm, s.nu_pending, s.cost_cap
-    )
+    return _setup_cached(*_setup_key(s))
 
 
 def run(
@@ -97,7 +100,7 @@ def run(
             n_test=s.test_trajectories,
             progress=progress,
         )
-    agent = _agent(s, st)
+    agent = _agent(s)
     if method == "pg":
         # hover: the trim-holding base flies π_1's test trajectories (π_1 never acts from μ);
         # the funnel's π_1 acts, so its gains are the base there (policy_gradient docstring)
@@ -107,7 +110,7 @@ def run(
             hold=s.task in ("hover", "hover-delay"), nu_state_var=s.nu_state_var,
             cost_cap=s.cost_cap, progress=progress,
         )  # fmt: skip
-    nus, cell = _cell(s, st, agent)
+    nus, cell = _cell(s)
     fractions = M.policy_fractions(method, s.iterations, dagger_fraction=s.dagger_fraction)
     return run_learning(
         st.plant, agent, nus, fractions, seeds, samples=s.samples, n_test=s.test_trajectories,
@@ -141,35 +144,48 @@ def check_methods(s, methods) -> None:
             raise ValueError(f"unknown method {m!r} for {s.name}; choose from {', '.join(allowed)}")
 
 
-_AGENTS: dict = {}
-_CELLS: dict = {}
+# The agent and the compiled cell are cached on the scenario fields that determine them (bounded,
+# like the setups), so every method of a run shares one compilation and nothing is keyed on an
+# object's id (which Python may reuse once the object is gone).
 
 
-def _agent(s: Scenario, st: Setup) -> Agent:
-    key = (id(st), s.ftrl_lambda)
-    if key not in _AGENTS:
-        learner = ftrl_least_squares(s.ftrl_lambda)
-        task = st.plant.task
-        _AGENTS[key] = linear_agent(st.nominal, learner, task.Q, task.R, st.plant.horizon)
-    return _AGENTS[key]
+def _agent(s: Scenario) -> Agent:
+    """The model-based agent of scenario ``s`` (linear offset model, FTRL, LQR)."""
+    return _agent_cached(_setup_key(s), s.ftrl_lambda)
 
 
-def _cell(s: Scenario, st: Setup, agent: Agent):
+@lru_cache(maxsize=8)
+def _agent_cached(setup_key: tuple, lam: float) -> Agent:
+    st = _setup_cached(*setup_key)
+    task = st.plant.task
+    return linear_agent(st.nominal, ftrl_least_squares(lam), task.Q, task.R, st.plant.horizon)
+
+
+def _cell(s: Scenario):
     """The ν samplers (ν_t, ν_e, ν_en) and the one compiled cell that DAgger, Batch and Abbeel
     share on this scenario, whichever ν they draw from (a traced switch)."""
-    key = (id(st), id(agent), s.nu_state_var, s.nu_action_var, s.expert_action_var)
-    key += (s.samples, s.iterations, s.test_trajectories, s.sampling, s.gamma, s.test_policy)
-    if key not in _CELLS:
-        nus = [
-            make_nu(
-                kind, st.plant, st.K_expert, state_var=s.nu_state_var,
-                action_var=s.nu_action_var, expert_action_var=s.expert_action_var,
-            )
-            for kind in NU_KINDS
-        ]  # fmt: skip
-        cell = make_cell(
-            st.plant, agent, nus, samples=s.samples, iterations=s.iterations,
-            n_test=s.test_trajectories, mode=s.sampling, gamma=s.gamma, test_policy=s.test_policy,
-        )  # fmt: skip
-        _CELLS[key] = (nus, cell)
-    return _CELLS[key]
+    return _cell_cached(
+        _setup_key(s), s.ftrl_lambda, s.nu_state_var, s.nu_action_var, s.expert_action_var,
+        s.samples, s.iterations, s.test_trajectories, s.sampling, s.gamma, s.test_policy,
+    )  # fmt: skip
+
+
+@lru_cache(maxsize=8)
+def _cell_cached(
+    setup_key, lam, nu_state_var, nu_action_var, expert_action_var, samples, iterations,
+    test_trajectories, sampling, gamma, test_policy,
+):  # fmt: skip
+    st = _setup_cached(*setup_key)
+    agent = _agent_cached(setup_key, lam)
+    nus = [
+        make_nu(
+            kind, st.plant, st.K_expert, state_var=nu_state_var, action_var=nu_action_var,
+            expert_action_var=expert_action_var,
+        )
+        for kind in NU_KINDS
+    ]  # fmt: skip
+    cell = make_cell(
+        st.plant, agent, nus, samples=samples, iterations=iterations, n_test=test_trajectories,
+        mode=sampling, gamma=gamma, test_policy=test_policy,
+    )  # fmt: skip
+    return nus, cell
