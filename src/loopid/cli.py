@@ -157,7 +157,7 @@ def _finish(out: Path, table, t0: float, output: _Output) -> None:
 
 
 def _workers(executor: str, workers: int | None) -> int:
-    """``--workers``: the local executor's worker processes (default: the machine's CPUs)."""
+    """``--workers``: the local executor's worker processes (default: one per CPU, at most 4)."""
     from loopid.experiments.executors import check_workers, default_workers
 
     if workers is None:
@@ -191,7 +191,7 @@ EXECUTOR = typer.Option("local", "--executor", help="local (this machine) or ray
 WORKERS = typer.Option(
     None,
     "--workers",
-    help="local: worker processes, one cell each at a time (default: the machine's CPUs; "
+    help="local: worker processes, one cell each at a time (default: one per CPU, at most 4; "
     "1 = in this process).",
 )
 RAY_ADDRESS = typer.Option(

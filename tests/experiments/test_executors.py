@@ -81,3 +81,11 @@ def test_a_failing_cell_raises_in_the_caller():
     js = jobs(methods=("a", "boom"), iterations=1)
     with pytest.raises(RuntimeError, match="boom"):
         list(run_local(js, [0], fake_cell, workers=2))
+
+
+def test_default_workers_is_one_per_cpu_up_to_the_cap(monkeypatch):
+    import loopid.experiments.executors as ex
+
+    for cpus, expected in [(None, 1), (1, 1), (2, 2), (64, ex.MAX_DEFAULT_WORKERS)]:
+        monkeypatch.setattr(ex.os, "cpu_count", lambda c=cpus: c)
+        assert ex.default_workers() == expected

@@ -105,9 +105,15 @@ def check_workers(workers) -> int:
     return workers
 
 
+#: At most this many workers by default: each XLA CPU process runs threads of its own on every
+#: core and holds 1.5-3 GB, so one per core would oversubscribe a large machine's cores and memory.
+MAX_DEFAULT_WORKERS = 4
+
+
 def default_workers() -> int:
-    """The local executor's default worker count on the command line: the machine's CPUs."""
-    return os.cpu_count() or 1
+    """The local executor's default worker count on the command line: one per CPU, at most
+    :data:`MAX_DEFAULT_WORKERS`."""
+    return max(1, min(os.cpu_count() or 1, MAX_DEFAULT_WORKERS))
 
 
 def run_local(
