@@ -291,7 +291,8 @@ def report_text(
         first = sum(f for _, f in times.values())
         L += [
             f"- cells: {len(times)}, {wall:.1f} s in all as recorded by each cell "
-            f"(cells skipped on resume keep the time of the run that computed them)",
+            f"(cells skipped on resume keep the time of the run that computed them; cells "
+            f"computed by parallel workers overlap, so the sum can exceed the command's time)",
             f"- of which until each cell's iteration 2 (compilation, or loading it from the "
             f"cache, plus two iterations): {first:.1f} s; after it: {wall - first:.1f} s",
         ]
