@@ -305,22 +305,21 @@ def make_cell(
         counts = (jnp.sum(take & batch.mask), jnp.sum(batch.mask))
         return carry, (loss_nu, loss_pol, online, *counts)
 
-    def learn_from(n):
+    def skip(carry: _Carry, key, n, p, which):
+        stats = jax.eval_shape(learn, carry, key, n, p, which)[1]
+        return carry, jax.tree_util.tree_map(lambda a: jnp.zeros(a.shape, a.dtype), stats)
+
+    def learn_after_first(carry: _Carry, key, n, p, which):
         """Iteration 1 collects nothing: the learning half is skipped (a ``cond`` on the
         unbatched ``n``, so only the taken branch runs) and its statistics are zeros."""
-
-        def skip(carry, key, n, p, which):
-            stats = jax.eval_shape(learn, carry, key, n, p, which)[1]
-            return carry, jax.tree_util.tree_map(lambda a: jnp.zeros(a.shape, a.dtype), stats)
-
-        return lambda *args: jax.lax.cond(n > 1, learn, skip, *args)
+        return jax.lax.cond(n > 1, learn, skip, carry, key, n, p, which)
 
     # the carry is donated: run_learning never reads the old one, and XLA then updates the
     # learner's sufficient statistics in place instead of copying them (~110 MB on the funnel)
     @functools.partial(jax.jit, donate_argnums=0)
     def step(carry: _Carry, keys, noise, n, p, which=0):
         in_axes = (0, 0, None, None, None)
-        carry, stats = jax.vmap(learn_from(n), in_axes=in_axes)(carry, keys, n, p, which)
+        carry, stats = jax.vmap(learn_after_first, in_axes=in_axes)(carry, keys, n, p, which)
         carry, (mean, median, div, info, extra) = solve_and_test(carry, keys, noise, n, p)
         return carry, Row(mean, median, div, *stats, *info, extra)
 
