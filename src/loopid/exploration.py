@@ -12,6 +12,14 @@ Each sampler is a pure function ``sample(key, m) -> Transitions`` of ``m`` trans
   the real noisy system, drawn uniformly from fresh expert rollouts.
 - ``ν_en`` (:func:`nu_expert`, ``action_std = 0.01``): the same, with ``N(0, 0.0001 I)`` added
   to the expert's actions while it flies.
+
+With a delay the plant's readings decide what a ν sample is (SPEC §5.1): under ``delay_mode =
+"fifo"`` each pair is queried with the pending FIFO filled with the action (``nu_pending =
+"hold"``) or empty (``"zero"``), or, for ν_e/ν_en with ``"rollout"``, not queried at all: the
+sample is the transition the expert's own delayed rollout recorded, ``(x_t, commanded Δu_t,
+x_{t+1})`` (ν_t, which has no rollout, is then queried as under ``hold``). Under ``"latency"``
+the expert flies with latency, the pair is the state and the change it applied, and the query
+is a plain one-step query.
 """
 
 import math
@@ -61,7 +69,8 @@ def nu_expert(plant: Plant, K_expert: jax.Array, *, action_std: float = 0.0) -> 
 
     ``K_expert: [horizon, m, n]`` is the expert's affine gain in error coordinates. Each call runs
     ``ceil(count / horizon)`` fresh expert rollouts (with the action noise), draws ``count`` visited
-    pairs uniformly, and queries the system there.
+    pairs uniformly, and queries the system there (``plant.nu_pending == "rollout"``: keeps the
+    rollouts' own recorded transitions instead, module docstring).
     """
     if action_std < 0:
         raise ValueError(f"action_std must be >= 0, got {action_std}")
@@ -73,6 +82,8 @@ def nu_expert(plant: Plant, K_expert: jax.Array, *, action_std: float = 0.0) -> 
             jax.random.split(k_roll, runs)
         )
         visited = draw(flatten(tr), k_draw, count)
+        if plant.nu_pending == "rollout":
+            return visited
         fresh = _query_many(plant, visited.x, visited.du, visited.t, k_q)
         return fresh._replace(mask=fresh.mask & visited.mask)
 

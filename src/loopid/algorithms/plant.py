@@ -9,7 +9,8 @@ pure operations that Algorithm 1 of Ross & Bagnell (2012) needs:
   step as a transition with a validity mask (fixed shape ``[horizon]``).
 - ``query(x, du, t, key)``: the generative model: set the system to raw state ``x`` at target time
   ``t``, apply ``du``, observe ``x'`` (SPEC §3: with delay d the pending FIFO holds ``du`` for
-  ``nu_pending="hold"``, zeros for ``"zero"``).
+  ``nu_pending="hold"`` (and ``"rollout"``, whose ν_e/ν_en samples skip the query), zeros for
+  ``"zero"``; under ``delay_mode="latency"`` a plain one-step query, ``x' = f(x, du)``).
 - ``test_noise(key, n_test)``: the process noise ``[n_test, horizon, 6]`` of ``n_test`` test
   trajectories (trajectory i from ``jax.random.split(key, n_test)[i]``).
 - ``test_costs(K, noise)``: the test trajectories driven by that noise over the whole target,
@@ -27,6 +28,20 @@ and the reference ``test_seeds`` is tested against.
 
 Policies are time-varying affine gains in error coordinates, ``K: [horizon, m, n]``: the error
 state ends with the constant 1, so the last column of ``K_t`` is the feedforward term.
+
+Two readings of a delay of d steps (SPEC §5.1, ``delay_mode``):
+
+- ``"fifo"`` (SPEC §3): the policy commands ``Δu_t = −K_t Δx_t`` and the simulator applies the
+  change commanded d steps earlier (a FIFO of commands, zeros at the start). The learner records
+  the commanded change, ``(x_t, Δu_t, x_{t+1})``, which is not Markov in ``x_t``.
+- ``"latency"`` (the course code that ships the simulator): the policy acts on the error state
+  observed d steps earlier, ``Δu_t = −K_{t−d} Δx_{t−d}`` (a FIFO of observations, zero vectors at
+  the start, so ``Δu_t = 0`` for t < d), and its change acts at once, ``x_{t+1} = f(x_t, Δu_t)``.
+  The learner records that true, Markov transition.
+
+For any fixed gain both modes apply the same change at every step: the closed loop, and so the
+test cost, is the same (the cost's ``ΔuᵀRΔu`` term sums the commanded changes under ``fifo`` and
+the applied ones under ``latency``; they differ by the last d commands, ~1e-12 of a hover cost).
 """
 
 from collections.abc import Callable
@@ -117,6 +132,8 @@ class Plant(NamedTuple):
     test_seeds: Callable[..., tuple[jax.Array, jax.Array]]
     noise_std: float
     dynamics: Dynamics
+    delay_mode: str = "fifo"
+    nu_pending: str = "hold"
 
     def test_noise(self, key: jax.Array, n_test: int) -> jax.Array:
         """Process noise ``[n_test, horizon, n_noise]`` of ``n_test`` test trajectories."""
@@ -160,6 +177,7 @@ def make_plant(
     stop_norm: float = 5.0,
     nu_pending: str = "hold",
     cost_cap: float = 1e8,
+    delay_mode: str = "fifo",
 ) -> Plant:
     """A JAX system (:class:`loopid.systems.base.Dynamics`) under ``task`` as a :class:`Plant`.
 
@@ -167,11 +185,12 @@ def make_plant(
       task: a :class:`loopid.systems.tasks.Task` (target ``[T, k]``, noise std, delay, Q, R, x0).
       dynamics: the system's step, error coordinates and noise.
       stop_norm: training trajectories restart from μ when ``‖[Δx_{0:20}; Δu]‖₂ > stop_norm``.
-      nu_pending: delayed-query convention for ν samples, ``"hold"`` or ``"zero"`` (SPEC §3).
+      nu_pending: delayed-query convention for ν samples under ``fifo``: ``"hold"``, ``"zero"``
+        or ``"rollout"`` (SPEC §3, §5.1; :data:`NU_PENDING`).
       cost_cap: a test trajectory's total cost is capped here and then counts as diverged.
+      delay_mode: ``"fifo"`` or ``"latency"`` (module docstring; :data:`DELAY_MODES`).
     """
-    if nu_pending not in ("hold", "zero"):
-        raise ValueError(f"nu_pending must be 'hold' or 'zero', got {nu_pending!r}")
+    check_delay_reading(delay_mode, nu_pending)
     if not stop_norm > 0:
         raise ValueError(f"stop_norm must be > 0, got {stop_norm!r}")
     if not cost_cap > 0:
@@ -186,7 +205,11 @@ def make_plant(
     m = dynamics.n_action
     n = dynamics.n_error
     step_delayed, to_error = dynamics.step_delayed, dynamics.to_error
+    latency = delay_mode == "latency"
     fifo0 = jnp.zeros((d, m), dtype=jnp.float64)
+    no_fifo = jnp.zeros((0, m), dtype=jnp.float64)
+    # what the controller remembers between steps: commands (fifo) or observations (latency)
+    memory0 = jnp.zeros((d, n), dtype=jnp.float64) if latency else fifo0
     quad_Q, quad_R = _quadratic_form(task.Q), _quadratic_form(task.R)
     if dynamics.columns:
         step_columns, error_columns = step_delayed, to_error
@@ -201,29 +224,38 @@ def make_plant(
         eps = action_std * jax.random.normal(k_act, (horizon, m), dtype=jnp.float64)
 
         def body(carry, inp):
-            x, fifo, tau = carry
+            x, memory, tau = carry
             w, e = inp
             dx = to_error(x, target[tau])
-            du = -K[tau] @ dx + e
+            if latency:  # act at once on the observation of d steps ago
+                observed = jnp.concatenate([memory, dx[None]], axis=0)
+                du = -K[jnp.maximum(tau - d, 0)] @ observed[0] + e
+                x_next, _ = step_delayed(x, no_fifo, du, w)
+                memory_next = observed[1:]
+            else:  # command now, applied d steps later
+                du = -K[tau] @ dx + e
+                x_next, memory_next = step_delayed(x, memory, du, w)
             size = jnp.linalg.norm(jnp.concatenate([dx[:-1], du]))
             safe = jnp.isfinite(size) & (size <= stop_norm)
-            x_next, fifo_next = step_delayed(x, fifo, du, w)
             dx_next = to_error(x_next, target[tau + 1])
             restart = ~safe | (tau + 1 >= horizon)
             carry = (
                 jnp.where(restart, x0, x_next),
-                jnp.where(restart, fifo0, fifo_next),
+                jnp.where(restart, memory0, memory_next),
                 jnp.where(restart, 0, tau + 1),
             )
             return carry, Transitions(x, dx, du, dx_next, tau, safe)
 
-        _, tr = jax.lax.scan(body, (x0, fifo0, jnp.int32(0)), (noise, eps))
+        _, tr = jax.lax.scan(body, (x0, memory0, jnp.int32(0)), (noise, eps))
         return clean(tr)
 
     def query(x: jax.Array, du: jax.Array, t: jax.Array, key: jax.Array) -> Transitions:
         """One generative query at raw state ``x``, change ``du``, target time ``t`` (unbatched)."""
         w = dynamics.noise_sequence(key, 1, std)[0]
-        fifo = jnp.broadcast_to(du, (d, m)) if nu_pending == "hold" else fifo0
+        if latency:
+            fifo = no_fifo
+        else:
+            fifo = fifo0 if nu_pending == "zero" else jnp.broadcast_to(du, (d, m))
         x_next, _ = step_delayed(x, fifo, du, w)
         dx = to_error(x, target[t])
         dx_next = to_error(x_next, target[t + 1])
@@ -235,16 +267,22 @@ def make_plant(
         noise ``[horizon, 6]``."""
 
         def body(carry, inp):
-            x, fifo, total = carry
+            x, memory, total = carry
             w, tau = inp
             dx = to_error(x, target[tau])
-            du = -K[tau] @ dx
+            if latency:
+                observed = jnp.concatenate([memory, dx[None]], axis=0)
+                du = -K[jnp.maximum(tau - d, 0)] @ observed[0]
+                x, _ = step_delayed(x, no_fifo, du, w)
+                memory = observed[1:]
+            else:
+                du = -K[tau] @ dx
+                x, memory = step_delayed(x, memory, du, w)
             total = total + dx @ Q @ dx + du @ R @ du
-            x, fifo = step_delayed(x, fifo, du, w)
-            return (x, fifo, total), None
+            return (x, memory, total), None
 
         taus = jnp.arange(horizon, dtype=jnp.int32)
-        (x, _, total), _ = jax.lax.scan(body, (x0, fifo0, jnp.float64(0.0)), (noise, taus))
+        (x, _, total), _ = jax.lax.scan(body, (x0, memory0, jnp.float64(0.0)), (noise, taus))
         dx = to_error(x, target[horizon])
         total = total + dx @ Q @ dx
         diverged = ~jnp.isfinite(total) | (total >= cost_cap)
@@ -257,28 +295,64 @@ def make_plant(
         reads it without a copy). The same numbers as :func:`test_one` on each trajectory."""
         S, n_test = W.shape[2:]
         b = S * n_test  # one flat batch: trajectory i of seed s is column s·n_test + i
+        if latency:  # step τ uses the gain of the observed step τ − d
+            K = K[:, jnp.maximum(jnp.arange(horizon) - d, 0)]
         Kc = jnp.moveaxis(K, 0, -1)  # [horizon, m, n, S]
         x = jnp.broadcast_to(x0[:, None], (x0.shape[0], b))
-        fifo = jnp.zeros((d, m, b), jnp.float64)
+        memory = jnp.zeros((d, n if latency else m, b), jnp.float64)
+        no_fifo_b = jnp.zeros((0, m, b), jnp.float64)
 
         def body(carry, inp):
-            x, fifo, total = carry
+            x, memory, total = carry
             w, K_t, tau = inp
             dx = error_columns(x, target[tau])
-            dx_s = dx.reshape(n, S, n_test)
+            if latency:
+                observed = jnp.concatenate([memory, dx[None]], axis=0)
+                dx_s = observed[0].reshape(n, S, n_test)
+                memory = observed[1:]
+            else:
+                dx_s = dx.reshape(n, S, n_test)
             du = -sum(K_t[:, j, :, None] * dx_s[j] for j in range(n)).reshape(m, b)
             total = total + quad_Q(dx) + quad_R(du)
-            x, fifo = step_columns(x, fifo, du, w.reshape(-1, b))
-            return (x, fifo, total), None
+            if latency:
+                x, _ = step_columns(x, no_fifo_b, du, w.reshape(-1, b))
+            else:
+                x, memory = step_columns(x, memory, du, w.reshape(-1, b))
+            return (x, memory, total), None
 
         taus = jnp.arange(horizon, dtype=jnp.int32)
         total = jnp.zeros(b, jnp.float64)
-        (x, _, total), _ = jax.lax.scan(body, (x, fifo, total), (W, Kc, taus))
+        (x, _, total), _ = jax.lax.scan(body, (x, memory, total), (W, Kc, taus))
         total = (total + quad_Q(error_columns(x, target[horizon]))).reshape(S, n_test)
         diverged = ~jnp.isfinite(total) | (total >= cost_cap)
         return jnp.where(diverged, cost_cap, total), diverged
 
-    return Plant(task, horizon, n, m, rollout, query, test_one, test_seeds, std, dynamics)
+    return Plant(
+        task, horizon, n, m, rollout, query, test_one, test_seeds, std, dynamics, delay_mode,
+        nu_pending,
+    )  # fmt: skip
+
+
+#: Readings of a delay (SPEC §5.1): ``fifo`` (SPEC §3) or ``latency`` (module docstring).
+DELAY_MODES = ("fifo", "latency")
+#: Delayed ν queries under ``fifo`` (SPEC §3, §5.1): the pending FIFO filled with the queried
+#: action, left empty (zeros), or no query for ν_e/ν_en (the expert's own recorded transitions).
+NU_PENDING = ("hold", "zero", "rollout")
+
+
+def check_delay_reading(delay_mode: str, nu_pending: str) -> None:
+    """Raise ``ValueError`` (one line) for an unknown ``delay_mode`` or ``nu_pending``, or a
+    ``nu_pending`` other than ``hold`` under ``latency`` (whose ν queries are plain one-step
+    queries: nothing is pending)."""
+    if delay_mode not in DELAY_MODES:
+        raise ValueError(f"delay_mode must be one of {', '.join(DELAY_MODES)}, got {delay_mode!r}")
+    if nu_pending not in NU_PENDING:
+        raise ValueError(f"nu_pending must be one of {', '.join(NU_PENDING)}, got {nu_pending!r}")
+    if delay_mode == "latency" and nu_pending != "hold":
+        raise ValueError(
+            f"nu_pending applies to delay_mode 'fifo' only (latency queries are plain one-step "
+            f"queries), got nu_pending={nu_pending!r} with delay_mode='latency'"
+        )
 
 
 def _quadratic_form(M) -> Callable[[jax.Array], jax.Array]:
