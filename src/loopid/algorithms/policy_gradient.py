@@ -16,7 +16,7 @@ all see the same process noise ``w`` (common random numbers):
 2. *Probes.* P rollouts of ``θ + δ_i``, ``δ_i = (σ/√d) (ε_i ⊙ F) diag(1/s)``, ``ε_i ~ N(0, I)``,
    F the free mask, d the number of free gains; each gives ``ℓ_i − ℓ_0``, exactly the
    one-sided difference of the same noise draw's cost. Each (δ_i, ℓ_i − ℓ_0) enters a memory
-   of the last ``L = d`` probes.
+   of the last ``L = max(d, P + 1)`` probes (a ring buffer).
 3. *Gradient: the footnote's linear system.* In the current scaled coordinates ``e = δ diag(s)``,
    the minimum-norm least-squares ``g`` of ``⟨g, e_j⟩ = ℓ_j − ℓ_0^{(j)}`` over the memory
    (:func:`fd_gradient`; empty slots are zero rows, which do not change the solution).
@@ -24,6 +24,26 @@ all see the same process noise ``w`` (common random numbers):
    same noise ``w``; it enters the memory as a probe, and is accepted only if its log cost is
    below ``ℓ_0``. The trust radius ``ρ`` halves after a rejection and stays after an acceptance
    (``ρ_1 = pg_step · σ√m``).
+
+Two readings of "samples" (SPEC §5.3), ``samples_mode`` (the scenario's ``pg_samples``):
+
+- ``"transitions"`` (the default; the measurements below): a sample is one transition, as for
+  every other method. Iteration n spends ``(P + 2)·H ≤ m`` of them: ``H = min(pg_horizon, T,
+  m // 4)``, ``P = m // H − 2`` (hover, m = 500: H = 125, P = 2).
+- ``"rollouts"``: a sample is one rollout of the whole ``H = min(pg_horizon, T)`` steps with
+  perturbed gains, scored by its cost. The m rollouts of an iteration are the reference, ``P =
+  m − 2`` probes and the candidate, and step 3's system is ``E g = Δℓ`` with ``E [L, d]`` the
+  scaled perturbations (``L ≥ P``), solved as ``g = E⁺ Δℓ``: with ``P ≥ d`` (hover: m ≥ 54,
+  funnel: m ≥ 86) it is determined by one iteration's probes alone (the memory then holds
+  them and the previous candidate), and on the shared draw ``w``
+  ``ℓ(θ + δ) − ℓ(θ) = ⟨∇ℓ_w(θ) diag(1/s), e⟩ + O(σ²)``, so ``g`` is that draw's gradient up to
+  curvature. Otherwise identical (steps 1-4); the rows count rollouts (``used = m``).
+
+The memory holds ``L = max(d, P + 1)`` rollouts: d so that the system can be square from
+several iterations' probes when P < d (the transitions reading: 2 probes a step); P + 1 so that
+one iteration's P probes and its candidate fit, since a ring-buffer scatter of P > L probes
+repeats slots (which write wins is then undefined) and would drop probes of the current draw.
+(With the transitions reading on hover and funnel P + 1 ≤ d, so L = d as before.)
 
 Why (SPEC §2 asks for the *why*). Numbers from hover at π_1 (θ = 0), exact autodiff gradients of
 the test objective ``J_400`` (400 steps from μ) over 200 noise draws
@@ -52,10 +72,10 @@ the test objective ``J_400`` (400 steps from μ) over 200 noise draws
   noise dominates. On one shared draw the differences are deterministic in δ: the system of
   step 3 recovers that draw's gradient exactly (cosine 1.000 with 120 probes, 0.43 with 10), and
   one draw's exact gradient is a descent direction of ``J_400`` (best ratio 0.75, median of 10).
-- *(choice)* **A memory of the last L = d probes** (the footnote's linear system with as many
-  equations as unknowns once full): two new probes per iteration span 2 of 52 directions; the
-  memory averages over the last ~17 iterations' draws and directions. Old probes were taken at
-  nearby θ and under other noise, which the least squares averages.
+- *(choice)* **A memory of the last L = d probes** (transitions reading; the footnote's linear
+  system with as many equations as unknowns once full): two new probes per iteration span 2 of
+  52 directions; the memory averages over the last ~17 iterations' draws and directions. Old
+  probes were taken at nearby θ and under other noise, which the least squares averages.
 - *(choice)* **Scaled coordinates.** The error coordinates differ by orders of magnitude (RMS
   along π_1's rollouts: positions ~15 m, velocities ~2 m/s, rates and attitude ~0.05-0.3), so a
   fixed step in raw gains is meaningless. Dividing column j by ``s_j`` makes a unit of ``φ = θ
@@ -71,8 +91,8 @@ the test objective ``J_400`` (400 steps from μ) over 200 noise draws
   drift dominates late) admits steps too long for ``J_400``. So ρ halves after a rejection and
   never grows.
 
-Measured (``run("pg", scenario("hover", samples=500, iterations=I, seeds=8, ...))``, each seed's
-test noise the same at every iteration, so last/first is a paired ratio):
+Measured, transitions reading (``run("pg", scenario("hover", samples=500, iterations=I, seeds=8,
+...))``, each seed's test noise the same at every iteration, so last/first is a paired ratio):
 
 - m = 500, 20 iterations, 300 test trajectories: median over seeds 2.58e6 -> 2.45e6; per-seed
   ratios 0.68-1.09, 5 of 8 below 1. 100 iterations (100 test trajectories): 2.58e6 -> 2.34e6,
@@ -123,10 +143,19 @@ class PGStep(NamedTuple):
     gradient: jax.Array
 
 
-def budget(samples: int, horizon: int, task_horizon: int) -> tuple[int, int]:
-    """Rollout length H and probe count P for m = ``samples`` transitions per iteration:
-    ``H = min(horizon, task_horizon, m // 4)``, ``R = m // H`` rollouts: one reference, one
-    candidate and ``P = R − 2`` probes (so ``R·H ≤ m`` and ``P ≥ 2``)."""
+SAMPLES_MODES = ("transitions", "rollouts")
+
+
+def budget(
+    samples: int, horizon: int, task_horizon: int, *, samples_mode: str = "transitions"
+) -> tuple[int, int]:
+    """Rollout length H and probe count P for m = ``samples`` per iteration (module docstring,
+    "Two readings"). ``"transitions"``: ``H = min(horizon, task_horizon, m // 4)``, ``R = m // H``
+    rollouts: one reference, one candidate and ``P = R − 2`` probes (so ``R·H ≤ m`` and
+    ``P ≥ 2``). ``"rollouts"``: ``H = min(horizon, task_horizon)`` and ``R = m`` rollouts, so
+    ``P = m − 2``. Both need m ≥ 4 (a reference, two probes, a candidate)."""
+    if samples_mode not in SAMPLES_MODES:
+        raise ValueError(f"pg_samples must be 'transitions' or 'rollouts', got {samples_mode!r}")
     if samples < 4:
         raise ValueError(
             f"the policy-gradient baseline needs samples >= 4 (a reference, two probes and a "
@@ -134,8 +163,17 @@ def budget(samples: int, horizon: int, task_horizon: int) -> tuple[int, int]:
         )
     if horizon < 1:
         raise ValueError(f"pg_horizon must be >= 1, got {horizon}")
+    if samples_mode == "rollouts":
+        return min(int(horizon), int(task_horizon)), samples - 2
     H = min(int(horizon), int(task_horizon), samples // 4)
     return H, samples // H - 2
+
+
+def spent(samples: int, horizon: int, task_horizon: int, *, samples_mode: str = "transitions"):
+    """What one iteration n ≥ 2 spends, in the unit of ``samples``: ``(P + 2)·H`` transitions
+    (``"transitions"``, at most m) or ``P + 2 = m`` rollouts (``"rollouts"``)."""
+    H, P = budget(samples, horizon, task_horizon, samples_mode=samples_mode)
+    return P + 2 if samples_mode == "rollouts" else (P + 2) * H
 
 
 def fd_gradient(perturbations: jax.Array, differences: jax.Array) -> jax.Array:
@@ -165,9 +203,11 @@ def pg_base(plant: Plant, K1: jax.Array, *, hold: bool) -> tuple[jax.Array, jax.
     return base, jnp.zeros((m, n), jnp.float64).at[:, 2 * m :].set(1.0)
 
 
-def init_state(free: jax.Array, radius: float) -> PGState:
-    """θ = 0, ``radius``, an empty memory of ``L`` = number of free gains."""
-    L = int(np.asarray(free).sum())
+def init_state(free: jax.Array, radius: float, *, probes: int = 0) -> PGState:
+    """θ = 0, ``radius``, an empty memory of ``L = max(d, probes + 1)`` slots (d = number of free
+    gains, ``probes`` = P of :func:`budget`): the last d probes, and at least one iteration's P
+    probes and candidate, so that no slot is written twice in one scatter."""
+    L = max(int(np.asarray(free).sum()), int(probes) + 1)
     m, n = free.shape
     return PGState(
         jnp.zeros((m, n)), jnp.float64(radius), jnp.zeros((L, m, n)), jnp.zeros(L),
@@ -185,10 +225,13 @@ def make_pg_step(
     sigma: float,
     nu_state_var: float,
     cost_cap: float,
+    samples_mode: str = "transitions",
 ) -> Callable[[PGState, jax.Array], tuple[PGState, PGStep]]:
     """One conservative iteration ``(state, key) -> (state, PGStep)`` for one seed (module
-    docstring, steps 1-4); pure, jittable, fixed shapes."""
-    H, P = budget(samples, horizon, plant.horizon)
+    docstring, steps 1-4); pure, jittable, fixed shapes. ``samples_mode``: the reading of
+    ``samples`` (:func:`budget`); the state's memory must hold ``P + 1`` rollouts
+    (``init_state(free, radius, probes=P)``)."""
+    H, P = budget(samples, horizon, plant.horizon, samples_mode=samples_mode)
     target = jnp.asarray(plant.task.target, jnp.float64)
     x0 = jnp.asarray(plant.task.x0, jnp.float64)
     Q, R = jnp.asarray(plant.task.Q), jnp.asarray(plant.task.R)
@@ -219,16 +262,21 @@ def make_pg_step(
         return jnp.log(jnp.maximum(total, jnp.finfo(jnp.float64).tiny)), dxs
 
     def remember(state: PGState, deltas, diffs) -> PGState:
-        k = deltas.shape[0]
-        slots = (state.cursor + jnp.arange(k, dtype=jnp.int32)) % d
+        k, L = deltas.shape[0], state.probes.shape[0]
+        slots = (state.cursor + jnp.arange(k, dtype=jnp.int32)) % L
         return state._replace(
             probes=state.probes.at[slots].set(deltas),
             diffs=state.diffs.at[slots].set(diffs),
             filled=state.filled.at[slots].set(True),
-            cursor=(state.cursor + k) % d,
+            cursor=(state.cursor + k) % L,
         )
 
     def step(state: PGState, key: jax.Array) -> tuple[PGState, PGStep]:
+        if state.probes.shape[0] < P + 1:  # static: a scatter with repeated slots is undefined
+            raise ValueError(
+                f"the probe memory holds {state.probes.shape[0]} rollouts, one iteration needs "
+                f"P + 1 = {P + 1}: use init_state(free, radius, probes={P})"
+            )
         k_noise, k_eps = jax.random.split(key)
         w = plant.dynamics.noise_sequence(k_noise, H, std)
         log_ref, dxs = rollout(state.theta, w)
@@ -270,24 +318,29 @@ def run_policy_gradient(
     hold: bool = False,
     nu_state_var: float = 0.0025,
     cost_cap: float = 1e8,
+    samples_mode: str = "transitions",
     progress: Callable[[int, Row], None] | None = None,
 ) -> Trace:
     """Run the baseline on every seed; the result has the shape of every other method's.
 
     ``horizon``: the longest rollout (``pg_horizon``); ``sigma``: the probe's action scale
     (``pg_sigma``); ``step``: the first trust radius in probing radii (``pg_step``); ``hold``:
-    the trim-holding base (:func:`pg_base`) instead of π_1's gains."""
+    the trim-holding base (:func:`pg_base`) instead of π_1's gains; ``samples_mode``: the
+    reading of ``samples`` (``pg_samples``, :func:`budget`). The rows' ``policy_samples`` and
+    ``valid_samples`` are what an iteration spent (:func:`spent`), and the Trace's ``samples``
+    column counts m per iteration: transitions under ``"transitions"``, *rollouts* (of
+    ``min(horizon, T)`` steps each) under ``"rollouts"``."""
     if not (sigma > 0 and step > 0):
         raise ValueError(f"pg_sigma and pg_step must be > 0, got {sigma!r}, {step!r}")
-    H, P = budget(samples, horizon, plant.horizon)
-    used = (P + 2) * H
+    _, P = budget(samples, horizon, plant.horizon, samples_mode=samples_mode)
+    used = spent(samples, horizon, plant.horizon, samples_mode=samples_mode)
     keys = seed_keys(seeds)
     K1, info = agent.policy(agent.init())
     m = plant.n_action
     base, free = pg_base(plant, K1, hold=hold)
     one_step = make_pg_step(
         plant, base, free, samples=samples, horizon=horizon, sigma=sigma,
-        nu_state_var=nu_state_var, cost_cap=cost_cap,
+        nu_state_var=nu_state_var, cost_cap=cost_cap, samples_mode=samples_mode,
     )  # fmt: skip
 
     def evaluate(theta, noise):
@@ -295,7 +348,7 @@ def run_policy_gradient(
         S = theta.shape[0]
         costs, div = plant.test_seeds(base[None] + theta[:, None], noise)
         zero = jnp.zeros(S)
-        count = jnp.full(S, used, jnp.int32)  # every sample comes from the (perturbed) policy
+        count = jnp.full(S, used, jnp.int32)  # every sample is of the (perturbed) policy
         return Row(
             jnp.mean(costs, axis=1), jnp.median(costs, axis=1), jnp.sum(div, axis=1), zero, zero,
             zero, count, count, jnp.full(S, info.converged), jnp.full(S, info.spectral_radius), {},
@@ -309,7 +362,7 @@ def run_policy_gradient(
 
     noise = test_noise(plant, keys, n_test, "last").test
     S = keys.shape[0]
-    one = init_state(free, step * sigma * np.sqrt(m))
+    one = init_state(free, step * sigma * np.sqrt(m), probes=P)
     state = jax.tree_util.tree_map(lambda a: jnp.broadcast_to(a, (S, *a.shape)), one)
     row = jax.jit(evaluate)(state.theta, noise)
     rows = [row]
