@@ -89,7 +89,17 @@ def test_read_config_rejects(tmp_path, text, needle):
         ({"task": "loop"}, "task must be one of"),
         ({"gamma": 1.0}, "gamma must be"),
         ({"sampling": "first"}, "sampling must be one of"),
-        ({"nu_pending": "drop"}, "nu_pending must be"),
+        ({"nu_pending": "drop"}, "nu_pending must be one of hold, zero, rollout, got 'drop'"),
+        ({"delay_mode": "lag"}, "delay_mode must be one of fifo, latency, got 'lag'"),
+        (
+            {"delay_mode": "latency", "nu_pending": "zero"},
+            "nu_pending applies to delay_mode 'fifo' only",
+        ),
+        (
+            {"funnel_nominal": "exact"},
+            "funnel_nominal must be one of spec, no-increment, drift, heading, got 'exact'",
+        ),
+        ({"pg_samples": "episodes"}, "pg_samples must be one of transitions, rollouts"),
         ({"cost_cap": float("nan")}, "cost_cap must be"),
         ({"colour": "red"}, "unknown scenario field"),
     ],

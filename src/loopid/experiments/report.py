@@ -24,6 +24,8 @@ import pyarrow as pa
 import loopid
 from loopid.experiments.results import read_table, write_atomic_bytes
 
+#: The scenario fields that are readings of the paper's open details (SPEC §5).
+READING_FIELDS = ("delay_mode", "nu_pending", "funnel_nominal", "pads", "pg_samples")
 #: "Good performance": final cost at most this multiple of the expert's (findings 2 and 5).
 GOOD_FACTOR = 2.0
 NUS = ("t", "e", "en")
@@ -70,6 +72,10 @@ class Costs:
         sel = (self.scenario == s) & (self.method == m)
         sel &= self.iteration == self.last_iteration(s, m)
         return int(np.sum(self.diverged[sel] > 0))
+
+
+def reading_text(v) -> str:
+    return ("true" if v else "false") if isinstance(v, bool) else str(v)
 
 
 def _g(x: float) -> str:
@@ -258,8 +264,10 @@ def report_text(
     hover_panels: set[str] | None = None,
     times: dict | None = None,
     command_s: float | None = None,
+    readings: dict[str, str] | None = None,
 ) -> str:
-    """The Markdown of ``report.md`` (see the module docstring)."""
+    """The Markdown of ``report.md`` (see the module docstring). ``readings``: per panel, the
+    readings of SPEC §5 it was run under (one line of text)."""
     import jax
 
     c = Costs(table)
@@ -299,7 +307,10 @@ def report_text(
     L.append("")
     L += ["## Final test cost per panel and method", ""]
     for s in c.scenarios:
-        L += [f"### {s}", "", *_final_table(c, s), ""]
+        L += [f"### {s}", ""]
+        if readings and s in readings:
+            L += [f"Readings (SPEC §5): {readings[s]}.", ""]
+        L += [*_final_table(c, s), ""]
     L += [
         "## The paper's findings (SPEC §4.5)",
         "",
@@ -336,6 +347,7 @@ def write_report(run_dir: Path, table: pa.Table | None = None, *, command_s=None
     cfg_file = run_dir / "config.toml"
     config_text = cfg_file.read_text() if cfg_file.is_file() else None
     hover_panels = None
+    readings = {}
     if config_text is not None:
         scenarios = tomllib.loads(config_text).get("scenario", {})
         hover_panels = {
@@ -343,12 +355,17 @@ def write_report(run_dir: Path, table: pa.Table | None = None, *, command_s=None
             for name, d in scenarios.items()
             if isinstance(d, dict) and d.get("task") in ("hover", "hover-delay")
         }
+        for name, d in scenarios.items():
+            shown = [f"{k} = {reading_text(d[k])}" for k in READING_FIELDS if k in d]
+            if shown:
+                readings[name] = ", ".join(shown)
     text = report_text(
         table,
         config_text=config_text,
         hover_panels=hover_panels,
         times=cell_times(run_dir),
         command_s=command_s,
+        readings=readings,
     )
     path = run_dir / "report.md"
     write_atomic_bytes(text.encode(), path)

@@ -10,7 +10,6 @@ from functools import lru_cache
 from typing import NamedTuple
 
 import jax
-import jax.numpy as jnp
 import numpy as np
 
 from loopid.algorithms import methods as M
@@ -22,8 +21,9 @@ from loopid.algorithms.policy_gradient import run_policy_gradient
 from loopid.experiments.scenarios import Scenario
 from loopid.exploration import NU_KINDS, make_nu
 from loopid.learners import ftrl_least_squares
-from loopid.models.linear_offset import LinearOffsetModel, hover_nominal, time_varying_nominal
+from loopid.models.linear_offset import LinearOffsetModel, hover_nominal
 from loopid.systems import helicopter
+from loopid.systems.funnel_nominal import funnel_nominal
 from loopid.systems.tasks import make_task
 
 
@@ -35,35 +35,39 @@ class Setup(NamedTuple):
     nominal: LinearOffsetModel
 
 
-def nominal_model(plant: Plant) -> LinearOffsetModel:
+def nominal_model(plant: Plant, funnel: str = "spec") -> LinearOffsetModel:
     """The initial model every method starts from (SPEC §4.2).
 
     Time-invariant tasks: A = I, B adds Δu into u_prev and du_prev (the paper's hover model).
-    Time-varying tasks: the true simulator linearised about hover trim, the same at every step,
-    plus the target's own motion ``−(x*_{t+1} ⊖ x*_t)``.
+    Time-varying tasks: the funnel's nominal of the reading ``funnel`` (SPEC §5.2,
+    :func:`loopid.systems.funnel_nominal.funnel_nominal`; ``spec``: the true simulator
+    linearised about hover trim, the same at every step, plus the target's own motion
+    ``−(x*_{t+1} ⊖ x*_t)``).
     """
     task = plant.task
     if not task.time_varying:
         return hover_nominal(helicopter.N_STATE, helicopter.N_ACTION)
-    hover = helicopter.hover_target()
-    A, B = helicopter.linearize(hover, hover)
-    target = jnp.asarray(task.target)
-    inc = jax.vmap(helicopter.target_increment)(target[:-1], target[1:])
-    return time_varying_nominal(A, B, inc)
+    return funnel_nominal(funnel, task)
 
 
 @lru_cache(maxsize=8)
 def _setup_cached(
-    task: str, noise_std, delay, pads: bool, stop_norm, nu_pending, cost_cap
-) -> Setup:
+    task: str, noise_std, delay, pads: bool, stop_norm, nu_pending, cost_cap, delay_mode,
+    funnel: str,
+) -> Setup:  # fmt: skip
     t = make_task(task, noise_std=noise_std, delay=delay, pads=pads)
-    plant = helicopter_plant(t, stop_norm=stop_norm, nu_pending=nu_pending, cost_cap=cost_cap)
-    return Setup(plant, expert_gains(t), nominal_model(plant))
+    plant = helicopter_plant(
+        t, stop_norm=stop_norm, nu_pending=nu_pending, cost_cap=cost_cap, delay_mode=delay_mode
+    )
+    return Setup(plant, expert_gains(t), nominal_model(plant, funnel))
 
 
 def _setup_key(s: Scenario) -> tuple:
     """The scenario fields that determine its :class:`Setup` (hashable)."""
-    return (s.task, s.noise_std, s.delay, s.pads, s.stop_norm, s.nu_pending, s.cost_cap)
+    return (
+        s.task, s.noise_std, s.delay, s.pads, s.stop_norm, s.nu_pending, s.cost_cap,
+        s.delay_mode, s.funnel_nominal,
+    )  # fmt: skip
 
 
 def setup(s: Scenario) -> Setup:
@@ -108,7 +112,7 @@ def run(
             st.plant, agent, seeds, iterations=s.iterations, samples=s.samples,
             n_test=s.test_trajectories, horizon=s.pg_horizon, sigma=s.pg_sigma, step=s.pg_step,
             hold=s.task in ("hover", "hover-delay"), nu_state_var=s.nu_state_var,
-            cost_cap=s.cost_cap, progress=progress,
+            cost_cap=s.cost_cap, samples_mode=s.pg_samples, progress=progress,
         )  # fmt: skip
     nus, cell = _cell(s)
     fractions = M.policy_fractions(method, s.iterations, dagger_fraction=s.dagger_fraction)

@@ -17,6 +17,9 @@ from pathlib import Path
 
 from loopid.algorithms.collect import SAMPLING_MODES
 from loopid.algorithms.loop import TEST_POLICIES
+from loopid.algorithms.plant import check_delay_reading
+from loopid.algorithms.policy_gradient import SAMPLES_MODES as PG_SAMPLES
+from loopid.systems.funnel_nominal import FUNNEL_NOMINALS
 from loopid.systems.tasks import TASK_NAMES
 
 
@@ -38,7 +41,16 @@ class Scenario:
       gamma: stopping parameter of ``geometric`` sampling (stop w.p. 1 − γ per step).
       dagger_fraction: DAgger's probability that a slot comes from the current policy.
       stop_norm: training trajectories restart when ‖[Δx; Δu]‖₂ exceeds this.
-      nu_pending: delayed ν queries: ``hold`` (pending FIFO filled with the action) or ``zero``.
+      nu_pending: delayed ν queries under ``fifo`` (SPEC §3, §5.1): ``hold`` (pending FIFO filled
+        with the action), ``zero`` (empty) or ``rollout`` (ν_e/ν_en: the expert's own recorded
+        transitions, no query).
+      delay_mode: how a delay acts (SPEC §5.1): ``fifo`` (the commanded change acts d steps later;
+        the learner records the command) or ``latency`` (the policy acts at once on the state
+        observed d steps earlier; the learner records the true transition).
+      funnel_nominal: the funnel's nominal model (SPEC §5.2): ``spec``, ``no-increment``,
+        ``drift`` or ``heading`` (:mod:`loopid.systems.funnel_nominal`).
+      pg_samples: what the policy-gradient baseline's m samples per iteration are (SPEC §5.3):
+        ``transitions`` or ``rollouts`` (one perturbed-gain rollout each).
       nu_state_var, nu_action_var: ν_t's state and action noise variances.
       expert_action_var: ν_en's action noise variance.
       ftrl_lambda: λ of the FTRL regulariser (λ/√n)‖W‖²_F.
@@ -63,6 +75,9 @@ class Scenario:
     dagger_fraction: float = 0.5
     stop_norm: float = 5.0
     nu_pending: str = "hold"
+    delay_mode: str = "fifo"
+    funnel_nominal: str = "spec"
+    pg_samples: str = "transitions"
     nu_state_var: float = 0.0025
     nu_action_var: float = 0.0001
     expert_action_var: float = 0.0001
@@ -129,8 +144,13 @@ def validate(s: Scenario) -> None:
         raise ValueError(
             f"test_policy must be one of {', '.join(TEST_POLICIES)}, got {s.test_policy!r}"
         )
-    if s.nu_pending not in ("hold", "zero"):
-        raise ValueError(f"nu_pending must be 'hold' or 'zero', got {s.nu_pending!r}")
+    check_delay_reading(s.delay_mode, s.nu_pending)
+    if s.funnel_nominal not in FUNNEL_NOMINALS:
+        raise ValueError(
+            f"funnel_nominal must be one of {', '.join(FUNNEL_NOMINALS)}, got {s.funnel_nominal!r}"
+        )
+    if s.pg_samples not in PG_SAMPLES:
+        raise ValueError(f"pg_samples must be one of {', '.join(PG_SAMPLES)}, got {s.pg_samples!r}")
     _number("gamma", s.gamma, 0.0, 1.0 - 1e-12, open_low=True)
     _number("dagger_fraction", s.dagger_fraction, 0.0, 1.0)
     _number("stop_norm", s.stop_norm, 0.0, open_low=True)
