@@ -4,6 +4,7 @@ The slow tests share one JAX compilation cache (``cache``), so only the first co
 """
 
 import os
+import re
 import signal
 import subprocess
 import sys
@@ -83,6 +84,9 @@ BAD = [
     (["reproduce", "--executor", "spark"], "'spark'"),
     (["reproduce", "--workers", "0"], "--workers"),
     (["run", "hover", "--workers", "2", "--executor", "ray"], "--workers"),
+    (["run", "hover-delay", "--config", "{badreading}"], "delay_mode must be one of fifo, latency"),
+    (["study", "--seeds", "0"], "seeds"),
+    (["study", "--reproduce", "{dir}/nowhere"], "--reproduce"),
     (["plot", "{dir}"], "results.parquet"),
     (["plot", "{corrupt}"], "not a readable Parquet table"),
 ]
@@ -98,6 +102,7 @@ def test_bad_input_exits_2_with_one_line(args, needle, tmp_path, no_cache, capsy
         "badmethods": write(tmp_path / "m.toml", 'methods = "dagger-t"\n'),
         "badmethod": write(tmp_path / "n.toml", 'methods = ["dagger-x"]\n'),
         "nottoml": write(tmp_path / "x.toml", "iterations = = 3\n"),
+        "badreading": write(tmp_path / "r.toml", 'delay_mode = "delayed"\n'),
         "corrupt": tmp_path / "c",
     }
     (tmp_path / "c").mkdir()
@@ -105,7 +110,7 @@ def test_bad_input_exits_2_with_one_line(args, needle, tmp_path, no_cache, capsy
     before = sorted(p.name for p in tmp_path.iterdir())
     out = tmp_path / "out"
     args = [a.format(**files) for a in args]
-    extra = ["--out", str(out)] if args[0] in ("run", "reproduce") else []
+    extra = ["--out", str(out)] if args[0] in ("run", "reproduce", "study") else []
     with pytest.raises(SystemExit) as e:
         main([*args, *extra])
     assert e.value.code == 2
@@ -241,3 +246,52 @@ def test_ray_executor_gives_the_local_table(tmp_path, cache, quick):
     local = pq.read_table(tmp_path / "local" / "results.parquet")
     assert pq.read_table(tmp_path / "ray" / "results.parquet").equals(local)
     assert (tmp_path / "ray" / "report.md").exists()
+
+
+@pytest.mark.slow
+def test_study_quick_writes_every_file_and_covers_every_reading(tmp_path, cache, quick):
+    """``loopid study --quick``, sharing the default reading's cells with a reproduce run."""
+    from loopid.experiments.study import FAMILIES, READING_FIELDS, READINGS
+
+    before = _cell_mtimes(quick)
+    out = tmp_path / "study"
+    r = cli("study", "--quick", "--quiet", "--out", out, "--reproduce", quick, cache=cache)
+    assert r.returncode == 0, r.stderr
+    assert _cell_mtimes(quick) == before  # the reproduce run's cells were reused, not redone
+    names = {p.name for p in out.iterdir()}
+    files = {"study.md", "study.parquet", "results.parquet", "config.toml"}
+    assert {*files, *(f"study_{f}.png" for f in FAMILIES)} <= names
+    shared = {p.name for p in (quick / "cells").iterdir()}
+    copied = {p.name for p in (out / "cells").iterdir()}
+    assert shared <= copied  # every cell of the default reading came from the reproduce run
+    for name in shared:
+        a, b = pq.read_table(quick / "cells" / name), pq.read_table(out / "cells" / name)
+        assert a.equals(b)
+    table = pq.read_table(out / "study.parquet")
+    cols = table.to_pydict()
+    assert set(cols["reading"]) == {rd.id for rd in READINGS}
+    for rd in READINGS:  # every (panel, method) of every reading, 2 seeds x 4 iterations
+        rows = [i for i, x in enumerate(cols["reading"]) if x == rd.id]
+        cells = {(cols["scenario"][i], cols["method"][i]) for i in rows}
+        assert cells == {(p, m) for p in rd.panels for m in METHODS}, rd.id
+        assert len(rows) == len(cells) * 2 * 4
+        for field, value in rd.changes.items():  # the reading is in the columns
+            text = str(value).lower() if isinstance(value, bool) else value
+            assert {cols[field][i] for i in rows} == {text}, (rd.id, field)
+    assert set(READING_FIELDS) <= set(table.column_names)
+    for name in table.column_names:
+        if pa_is_float(table.schema.field(name).type):
+            assert not np.isnan(np.asarray(cols[name], dtype=float)).any(), name
+    text = (out / "study.md").read_text()
+    for rd in READINGS:
+        assert f"### {rd.id}:" in text
+    assert text.count("**holds**") + text.count("**does not hold**") >= 5 * len(READINGS) - 5
+    assert not re.search(r"\bnan\b", text, re.IGNORECASE)
+    for f in FAMILIES:
+        assert (out / f"study_{f}.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+
+
+def pa_is_float(t) -> bool:
+    import pyarrow as pa
+
+    return pa.types.is_floating(t)

@@ -9,6 +9,9 @@
   file of scenario fields (and ``methods``); options given on the command line win over it.
   ``loopid run gym --config FILE``: any Gymnasium environment
   (:mod:`loopid.experiments.gym_config`).
+- ``loopid study [--out DIR] [--seeds N] [--quick] [--reproduce RUN_DIR] [--workers N]
+  [--executor local|ray]``: every reading of SPEC §5, one factor at a time
+  (:mod:`loopid.experiments.study`).
 - ``loopid plot DIR``: remake ``figure.png`` and ``report.md`` from ``DIR/results.parquet``.
 - ``loopid --version``.
 
@@ -331,6 +334,69 @@ def reproduce(
         workers=workers,
         t0=t0,
     )
+
+
+@app.command()
+def study(
+    out: Path = typer.Option(Path("runs/study"), "--out", help="Study directory."),
+    seeds: int = typer.Option(None, "--seeds", help="Number of seeds (default 20; --quick 2)."),
+    quick: bool = typer.Option(
+        False, "--quick", help="Smoke run: every reading, 2 seeds, 4 iterations."
+    ),
+    reproduce_dir: Path = typer.Option(
+        None,
+        "--reproduce",
+        help="A loopid reproduce run directory (e.g. runs): its finished cells of the same "
+        "configuration and seeds are copied, not recomputed.",
+    ),
+    quiet: bool = QUIET,
+    executor: str = EXECUTOR,
+    ray_address: str = RAY_ADDRESS,
+    workers: int = WORKERS,
+) -> None:
+    """Every reading of the paper's open details (SPEC 5), one factor at a time: study.md,
+    study.parquet and one figure per reading family."""
+    from loopid.experiments.execute import check_cells, resolved_config, run_cells
+    from loopid.experiments.executors import check_executor
+    from loopid.experiments.results import write_atomic
+    from loopid.experiments.rundir import RunDir
+    from loopid.experiments.scenarios import SCENARIOS
+    from loopid.experiments.study import (
+        funnel_prediction_lines,
+        share_cells,
+        study_cells,
+        study_table,
+        write_outputs,
+    )
+
+    t0 = time.perf_counter()
+    check_executor(executor, ray_address)
+    workers = _workers(executor, workers)
+    changes = dict(QUICK) if quick else {}
+    if seeds is not None:
+        changes["seeds"] = seeds
+    base = {name: s.replace(**changes) for name, s in SCENARIOS.items()}
+    scenarios, methods = study_cells(base)
+    seed_list = check_cells(scenarios, methods, None)
+    if reproduce_dir is not None and not (reproduce_dir / "config.toml").is_file():
+        raise ValueError(f"--reproduce {str(reproduce_dir)!r} holds no config.toml")
+    output = _Output(quiet)
+    RunDir(out).prepare(resolved_config(scenarios, methods, seed_list))
+    if reproduce_dir is not None:
+        shared = share_cells(out, reproduce_dir, scenarios, seed_list)
+        output.log(f"{len(shared)} cells shared with {reproduce_dir}")
+    try:
+        table = run_cells(
+            out, scenarios, methods, executor_name=executor, ray_address=ray_address,
+            workers=workers, on_cell=output.on_cell, log=output.log,
+        )  # fmt: skip
+    finally:
+        output.close()
+    readings = study_table(table, base)
+    write_atomic(readings, out / "study.parquet")
+    prediction = funnel_prediction_lines(base["funnel"])
+    write_outputs(out, readings, base, command_s=time.perf_counter() - t0, prediction=prediction)
+    output.log(f"wrote study.parquet ({readings.num_rows} rows), study.md and figures to {out}/")
 
 
 @app.command()

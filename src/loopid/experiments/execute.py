@@ -8,7 +8,7 @@ skips the finished cells and ends with the same table, row for row.
 """
 
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Mapping, Sequence
 
 import numpy as np
 import pyarrow as pa
@@ -31,12 +31,27 @@ from loopid.experiments.scenarios import Scenario
 ProgressFactory = Callable[[str, str, int], Callable[[int, Row], None] | None]
 
 
-def resolved_config(scenarios: Sequence[Scenario], methods: Sequence[str], seeds) -> dict:
+#: The methods of a run: one list for every scenario, or a list per scenario name.
+Methods = Sequence[str] | Mapping[str, Sequence[str]]
+
+
+def methods_of(methods: Methods, s: Scenario) -> list[str]:
+    """The methods scenario ``s`` runs."""
+    if isinstance(methods, Mapping):
+        return list(methods[s.name])
+    return list(methods)
+
+
+def resolved_config(scenarios: Sequence[Scenario], methods: Methods, seeds) -> dict:
     """The configuration written to ``config.toml``: everything that determines the table."""
+    if isinstance(methods, Mapping):
+        listed = {s.name: methods_of(methods, s) for s in scenarios}
+    else:
+        listed = list(methods)
     return {
         "run": {
             "loopid_version": loopid.__version__,
-            "methods": list(methods),
+            "methods": listed,
             "seeds": [int(s) for s in seeds],
         },
         "scenario": {s.name: s.to_dict() for s in scenarios},
@@ -64,19 +79,22 @@ def run_cell(
     return with_metadata(table, wall_s=f"{wall:.3f}", first_s=f"{first[0] or wall:.3f}")
 
 
-def check_cells(scenarios: Sequence[Scenario], methods: Sequence[str], seeds) -> np.ndarray:
+def check_cells(scenarios: Sequence[Scenario], methods: Methods, seeds) -> np.ndarray:
     """Validate a run's cells before anything is written; return the seeds as an array."""
     if not scenarios:
         raise ValueError("no scenarios to run")
     names = [s.name for s in scenarios]
     if len(set(names)) != len(names):
         raise ValueError(f"scenario names must differ, got {names}")
-    if not methods:
-        raise ValueError("no methods to run")
-    if len(set(methods)) != len(methods):
-        raise ValueError(f"methods must differ, got {list(methods)}")
+    if isinstance(methods, Mapping) and set(methods) != set(names):
+        raise ValueError(f"methods are given for {sorted(methods)}, the scenarios are {names}")
     for s in scenarios:
-        check_methods(s, methods)
+        chosen = methods_of(methods, s)
+        if not chosen:
+            raise ValueError("no methods to run")
+        if len(set(chosen)) != len(chosen):
+            raise ValueError(f"methods must differ, got {chosen}")
+        check_methods(s, chosen)
     seeds = np.arange(scenarios[0].seeds) if seeds is None else np.asarray(seeds)
     if seeds.ndim != 1 or seeds.size == 0 or not np.issubdtype(seeds.dtype, np.integer):
         raise ValueError(f"seeds must be a non-empty list of integers, got {seeds.tolist()!r}")
@@ -88,7 +106,7 @@ def check_cells(scenarios: Sequence[Scenario], methods: Sequence[str], seeds) ->
 def run_cells(
     out,
     scenarios: Sequence[Scenario],
-    methods: Sequence[str],
+    methods: Methods,
     seeds=None,
     *,
     executor_name: str = "local",
@@ -99,8 +117,9 @@ def run_cells(
 ) -> pa.Table:
     """Run every (scenario, method) cell not yet finished in ``out``; return the full table.
 
-    ``seeds`` defaults to ``range(scenario.seeds)`` of the first scenario (all scenarios of one
-    run share the seeds). ``executor_name``: ``local`` or ``ray`` (``ray_address`` joins a
+    ``methods``: one list for every scenario, or ``{scenario name: list}``. ``seeds`` defaults
+    to ``range(scenario.seeds)`` of the first scenario (all scenarios of one run share the
+    seeds). ``executor_name``: ``local`` or ``ray`` (``ray_address`` joins a
     cluster). ``workers``: the local executor's worker processes (1: in this process). Each
     finished cell is saved at once (atomically); ``results.parquet`` is rewritten after every
     cell.
@@ -118,10 +137,10 @@ def run_cells(
                 )
     rd = RunDir(out)
     rd.prepare(resolved_config(scenarios, methods, seeds))
-    order = [(s.name, m) for s in scenarios for m in methods]
+    order = [(s.name, m) for s in scenarios for m in methods_of(methods, s)]
     jobs = []
     for s in scenarios:
-        for m in methods:
+        for m in methods_of(methods, s):
             if rd.done(s.name, m):
                 if log:
                     log(f"{s.name} / {m}: already finished, skipped")

@@ -27,6 +27,7 @@ STYLE = {
     "abbeel": ("$A$", "C3", "-."),
     "expert": ("$L$", "black", "-"),
     "pg": ("PG", "C4", ":"),
+    "pg (rollouts)": ("PG, rollouts", "C5", "-"),  # the reading study's pg_samples = rollouts
 }
 TITLES = {"hover": "Hover", "hover-delay": "Hover, delay 1", "funnel": "Nose-in funnel"}
 

@@ -1,0 +1,438 @@
+"""The reading study (``loopid study``): every reading of SPEC §5, one factor at a time.
+
+The paper leaves some details of its experiments open (SPEC §5); each defensible reading is a
+scenario field (``delay_mode``, ``nu_pending``, ``funnel_nominal``, ``pads``, ``pg_samples``).
+A :class:`Reading` changes fields of the paper's panels (:data:`SCENARIOS`) away from the default
+and names the panels and methods whose results the change can touch. The study is one run
+directory (:func:`loopid.experiments.execute.run_cells`: resume, atomic cells, workers, Ray)
+holding, for every reading, exactly those cells, as the scenario ``PANEL-ID`` (the default
+reading's scenarios keep the panels' names); every other cell of a reading is the default's,
+which is the same computation (a method whose inputs the field does not reach). The default
+reading is the run of ``loopid reproduce`` itself: ``--reproduce DIR`` copies that run's
+finished cells of the same configuration (:func:`share_cells`) instead of computing them again.
+
+Why a method is untouched by a field (the cells a reading inherits from the default):
+
+- ``delay_mode``: the expert L and the policy gradient fly fixed gains, for which ``fifo`` and
+  ``latency`` are the same closed loop (the test cost's ``ΔuᵀRΔu`` term sums commanded changes
+  under ``fifo`` and applied ones under ``latency``: equal to ~1e-12 relative; the policy
+  gradient's own training rollouts are FIFO rollouts of that closed loop);
+- ``nu_pending``: only ν queries change: L and PG draw none; under ``rollout`` ν_t is queried as
+  under ``hold``, so D_t and B_t are untouched too;
+- ``funnel_nominal``: the expert is iLQR on the true simulator (no nominal);
+- ``pg_samples``: only the policy gradient.
+
+A *combination* reading (``favoured``: every reading the evidence favours, README "Readings")
+takes each cell from the one-factor reading that changes it, which is exact because its parts
+touch disjoint cells.
+
+Outputs in ``OUT``, besides the run directory's own files: ``study.parquet`` (every reading's
+table, each panel under its own name, with the columns ``reading`` and the reading fields),
+``study.md`` (per reading: final
+medians per panel and method, the five findings of SPEC §4.5 computed from the table, and for
+the funnel each nominal's one-step prediction error along the expert's flight) and one figure per
+reading family (``study_delay.png``, ``study_funnel.png``, ``study_pg.png``,
+``study_favoured.png``, in the layout of Figure 2).
+"""
+
+from collections.abc import Sequence
+from pathlib import Path
+from typing import NamedTuple
+
+import numpy as np
+import pyarrow as pa
+import pyarrow.compute as pc
+
+from loopid.algorithms.methods import LEARNING_METHODS, METHODS
+from loopid.experiments.report import READING_FIELDS, reading_text
+from loopid.experiments.results import concat, write_atomic_bytes
+from loopid.experiments.scenarios import SCENARIOS, Scenario
+
+
+class Reading(NamedTuple):
+    """One reading: ``id`` (a directory name), ``family`` (its figure), ``label``, the field
+    ``changes`` away from the default, the ``panels`` (scenario names) and ``methods`` whose
+    cells it runs, the SPEC section it comes from, and for a combination its ``parts`` (ids of
+    one-factor readings whose cells it takes)."""
+
+    id: str
+    family: str
+    label: str
+    changes: dict
+    panels: tuple[str, ...]
+    methods: tuple[str, ...]
+    spec: str
+    parts: tuple[str, ...] = ()
+
+
+ALL_PANELS = tuple(SCENARIOS)
+NU_E_METHODS = ("dagger-e", "dagger-en", "batch-e", "batch-en", "abbeel")
+
+READINGS: tuple[Reading, ...] = (
+    Reading("default", "default", "default (SPEC §3-4)", {}, ALL_PANELS, METHODS, "§4"),
+    Reading(
+        "latency", "delay", "delay_mode = latency", {"delay_mode": "latency"},
+        ("hover-delay",), LEARNING_METHODS, "§5.1",
+    ),
+    Reading(
+        "nu-zero", "delay", "nu_pending = zero", {"nu_pending": "zero"},
+        ("hover-delay",), LEARNING_METHODS, "§5.1",
+    ),
+    Reading(
+        "nu-rollout", "delay", "nu_pending = rollout", {"nu_pending": "rollout"},
+        ("hover-delay",), NU_E_METHODS, "§5.1",
+    ),
+    Reading(
+        "no-increment", "funnel", "funnel_nominal = no-increment",
+        {"funnel_nominal": "no-increment"}, ("funnel",), (*LEARNING_METHODS, "pg"), "§5.2",
+    ),
+    Reading(
+        "drift", "funnel", "funnel_nominal = drift", {"funnel_nominal": "drift"},
+        ("funnel",), (*LEARNING_METHODS, "pg"), "§5.2",
+    ),
+    Reading(
+        "heading", "funnel", "funnel_nominal = heading", {"funnel_nominal": "heading"},
+        ("funnel",), (*LEARNING_METHODS, "pg"), "§5.2",
+    ),
+    Reading("no-pads", "funnel", "pads = false", {"pads": False}, ("funnel",), METHODS, "§5.2"),
+    Reading(
+        "pg-rollouts", "pg", "pg_samples = rollouts", {"pg_samples": "rollouts"}, ALL_PANELS,
+        ("pg",), "§5.3",
+    ),
+    Reading(
+        "favoured", "favoured", "favoured: delay_mode = latency, pg_samples = rollouts",
+        {"delay_mode": "latency", "pg_samples": "rollouts"}, ALL_PANELS, (), "README",
+        parts=("latency", "pg-rollouts"),
+    ),
+)  # fmt: skip
+BY_ID = {r.id: r for r in READINGS}
+FAMILIES = ("delay", "funnel", "pg", "favoured")
+
+
+def scenario_name(r: Reading, panel: str) -> str:
+    """The run's scenario for reading ``r`` on ``panel``: the panel's own name for the default
+    (the name ``reproduce`` uses, so its cells can be shared), ``PANEL-ID`` otherwise."""
+    return panel if r.id == "default" else f"{panel}-{r.id}"
+
+
+def study_cells(base: dict[str, Scenario]) -> tuple[list[Scenario], dict[str, tuple[str, ...]]]:
+    """Every scenario the study runs (the readings' changes applied to ``base``, validated) and
+    the methods each runs; a combination runs nothing of its own."""
+    scenarios, methods = [], {}
+    for r in READINGS:
+        if r.parts:
+            continue
+        for p in r.panels:
+            s = base[p].replace(name=scenario_name(r, p), **r.changes)
+            scenarios.append(s)
+            methods[s.name] = r.methods
+    return scenarios, methods
+
+
+def share_cells(out: Path, reproduce: Path, scenarios: Sequence[Scenario], seeds) -> list[str]:
+    """Copy into ``out/cells`` every finished cell of the ``loopid reproduce`` run directory
+    ``reproduce`` whose scenario has the same configuration (every field, the name included)
+    and the same seeds as one of ``scenarios``; return the files copied."""
+    import shutil
+    import tomllib
+
+    from loopid.experiments.rundir import RunDir
+
+    config = tomllib.loads((Path(reproduce) / "config.toml").read_text())
+    if [int(x) for x in config.get("run", {}).get("seeds", [])] != [int(x) for x in seeds]:
+        return []
+    theirs, ours = RunDir(reproduce), RunDir(out)
+    copied = []
+    for s in scenarios:
+        if config.get("scenario", {}).get(s.name) != s.to_dict():
+            continue
+        for f in sorted(theirs.cells.glob(f"{s.name}__*.parquet")):
+            target = ours.cells / f.name
+            if not target.exists():
+                shutil.copy2(f, target.with_name(f".{f.name}.tmp"))
+                target.with_name(f".{f.name}.tmp").replace(target)
+                copied.append(f.name)
+    return copied
+
+
+def reading_table(r: Reading, table: pa.Table, base: dict[str, Scenario]) -> pa.Table:
+    """Reading ``r``'s full table on its panels: each (panel, method) cell from the reading (or
+    the part of a combination) that computed it, else the default's, with the scenario named
+    after the panel and the columns ``reading`` and the reading fields' values (strings)."""
+    pieces = []
+    for panel in r.panels:
+        s = base[panel].replace(**r.changes)
+        for method in METHODS:
+            source = BY_ID["default"]
+            for part in (r, *(BY_ID[i] for i in r.parts)):
+                if method in part.methods and panel in part.panels:
+                    source = part
+                    break
+            piece = _relabel(table, scenario_name(source, panel), panel)
+            piece = piece.filter(pc.equal(piece["method"], method))
+            n = piece.num_rows
+            piece = piece.append_column("reading", pa.array([r.id] * n, pa.string()))
+            for f in READING_FIELDS:
+                text = reading_text(getattr(s, f))
+                piece = piece.append_column(f, pa.array([text] * n, pa.string()))
+            pieces.append(piece)
+    return concat(pieces)
+
+
+def study_table(table: pa.Table, base: dict[str, Scenario]) -> pa.Table:
+    """Every reading's table (:func:`reading_table`) from the study run's ``results.parquet``."""
+    return concat([reading_table(r, table, base) for r in READINGS])
+
+
+# ----------------------------------------------------------------------------- outputs
+
+
+def _cells(table: pa.Table, panel: str, method: str) -> pa.Table:
+    mask = pc.and_(pc.equal(table["scenario"], panel), pc.equal(table["method"], method))
+    return table.filter(mask)
+
+
+def _subtable(table: pa.Table, reading: str) -> pa.Table:
+    return table.filter(pc.equal(table["reading"], reading))
+
+
+def _g(x: float) -> str:
+    return f"{x:.3g}"
+
+
+def medians(table: pa.Table) -> dict[tuple[str, str], float]:
+    """``{(panel, method): median over seeds of the final test cost}`` of one reading."""
+    from loopid.experiments.report import Costs
+
+    c = Costs(table)
+    return {
+        (s, m): float(np.median(c.at(s, m))) for s in c.scenarios for m in c.methods if c.has(s, m)
+    }
+
+
+ABBREV = {
+    "expert": "L", "dagger-t": "D_t", "dagger-e": "D_e", "dagger-en": "D_en", "batch-t": "B_t",
+    "batch-e": "B_e", "batch-en": "B_en", "abbeel": "A", "pg": "PG",
+}  # fmt: skip
+
+
+def medians_table(table: pa.Table) -> list[str]:
+    """Markdown: reading × panel rows, a column per method, final medians over seeds."""
+    order = ["expert", *[m for m in METHODS if m != "expert"]]
+    lines = [
+        "| reading | panel | " + " | ".join(ABBREV[m] for m in order) + " |",
+        "|---|---|" + "---|" * len(order),
+    ]
+    for r in READINGS:
+        sub = _subtable(table, r.id)
+        if sub.num_rows == 0:
+            continue
+        med = medians(sub)
+        for p in r.panels:
+            cells = [_g(med[(p, m)]) if (p, m) in med else "" for m in order]
+            lines.append(f"| {r.id} | {p} | " + " | ".join(cells) + " |")
+    return lines
+
+
+def findings_lines(table: pa.Table, r: Reading, base: dict[str, Scenario]) -> list[str]:
+    """The five findings of SPEC §4.5 on reading ``r``'s panels, each holds / does not hold."""
+    from loopid.experiments.report import findings
+
+    hover = {p for p in r.panels if base[p].task in ("hover", "hover-delay")}
+    out = []
+    for f in findings(_subtable(table, r.id), hover):
+        out.append(f"{f.number}. {f.claim} **{f.verdict}** (on means: {f.mean_verdict})")
+        out += [f"   - {d}" for d in f.details]
+    return out
+
+
+def verdicts(table: pa.Table, r: Reading, base: dict[str, Scenario]) -> list[str]:
+    """The five verdicts (on medians) of reading ``r``, in order."""
+    from loopid.experiments.report import findings
+
+    hover = {p for p in r.panels if base[p].task in ("hover", "hover-delay")}
+    return [f.verdict for f in findings(_subtable(table, r.id), hover)]
+
+
+def figures(table: pa.Table, out: Path) -> list[Path]:
+    """One figure per reading family, in the layout of Figure 2 (a panel per reading)."""
+    from loopid.experiments.plots import figure
+
+    paths = []
+    for family in FAMILIES:
+        rs = [r for r in READINGS if r.family == family]
+        if family in ("delay", "funnel"):
+            panel = rs[0].panels[0]
+            rs = [BY_ID["default"], *rs]
+            pieces = [
+                _relabel(_subtable(table, r.id), panel, f"{panel}: {r.label}")
+                for r in rs
+                if _subtable(table, r.id).num_rows
+            ]
+        elif family == "pg":
+            pieces = []
+            for p in ALL_PANELS:
+                default = _subtable(table, "default")
+                rollouts = _cells(_subtable(table, "pg-rollouts"), p, "pg")
+                rollouts = rollouts.set_column(
+                    rollouts.schema.get_field_index("method"),
+                    "method",
+                    pa.array(["pg (rollouts)"] * rollouts.num_rows, pa.string()),
+                )
+                keep = [_cells(default, p, m) for m in ("expert", "pg")]
+                pieces.append(_relabel(concat([*keep, rollouts]), p, p))
+        else:
+            sub = _subtable(table, rs[0].id)
+            pieces = [_relabel(sub, p, f"{p}: favoured readings") for p in ALL_PANELS]
+        pieces = [pc_ for pc_ in pieces if pc_.num_rows]
+        if not pieces:
+            continue
+        plain = concat([p.select(list(read_cols(p))) for p in pieces])
+        paths.append(figure(plain, out / f"study_{family}.png"))
+    return paths
+
+
+def read_cols(t: pa.Table) -> list[str]:
+    """The result columns a figure reads (the reading columns dropped)."""
+    return [c for c in t.column_names if c not in ("reading", *READING_FIELDS)]
+
+
+def _relabel(t: pa.Table, panel: str, title: str) -> pa.Table:
+    """Rows of ``panel`` in ``t`` with the scenario renamed ``title`` (the figure's panel)."""
+    t = t.filter(pc.equal(t["scenario"], panel))
+    i = t.schema.get_field_index("scenario")
+    return t.set_column(i, "scenario", pa.array([title] * t.num_rows, pa.string()))
+
+
+def study_text(
+    table: pa.Table,
+    base: dict[str, Scenario],
+    *,
+    command_s: float | None,
+    seeds: int,
+    prediction: list[str] | None = None,
+) -> str:
+    """The Markdown of ``study.md``."""
+    import jax
+
+    L = [
+        "# loopid reading study",
+        "",
+        "Every reading of SPEC §5, one factor at a time from the default, plus the combination "
+        'of the readings the evidence favours (README, "Readings"). Each reading runs only the '
+        "cells its field can change; the others are the default's (see "
+        "`loopid.experiments.study`). Medians over seeds of the test cost at each method's "
+        f"final iteration; {seeds} seeds. 1e8 is the cost cap (diverged).",
+        "",
+        "The `samples` column (and a figure's x axis) counts transitions, except for the "
+        "policy gradient under `pg_samples = rollouts`, where it counts rollouts (one "
+        "perturbed-gain rollout of the task horizon per sample).",
+        "",
+    ]
+    if command_s is not None:
+        L += [
+            f"Wall time of this command: {command_s:.0f} s ({jax.default_backend()}, "
+            f"{_cpus()} CPUs).",
+            "",
+        ]
+    L += ["## Final medians", "", *medians_table(table), ""]
+    L += ["## The paper's findings under each reading (SPEC §4.5)", ""]
+    L += [
+        "| reading | panels | 1 D < B | 2 D good, one B | 3 D < L (hover) | 4 A plateau | "
+        "5 PG little |",
+        "|---|---|---|---|---|---|---|",
+    ]
+    for r in READINGS:
+        if _subtable(table, r.id).num_rows == 0:
+            continue
+        v = verdicts(table, r, base)
+        L.append(f"| {r.id} | {', '.join(r.panels)} | " + " | ".join(v) + " |")
+    L.append("")
+    for r in READINGS:
+        if _subtable(table, r.id).num_rows == 0:
+            continue
+        changes = ", ".join(f"`{k} = {v}`" for k, v in r.changes.items()) or "none"
+        L += [
+            f"### {r.id}: {r.label}",
+            "",
+            f"Changes: {changes} (SPEC {r.spec}); panels: {', '.join(r.panels)}; "
+            f"cells run: {', '.join(r.methods) or 'none (taken from ' + ', '.join(r.parts) + ')'}.",
+            "",
+            *findings_lines(table, r, base),
+            "",
+        ]
+    if prediction:
+        L += [
+            "## The funnel's nominal models along the expert's flight (SPEC §5.2)",
+            "",
+            *prediction,
+        ]
+    return "\n".join(L) + "\n"
+
+
+#: SPEC §5.2's independent figures: one-step velocity RMS along the expert's flight.
+SPEC_PREDICTION = {"spec": 0.49, "no-increment": 0.47, "drift": 0.31, "heading": 0.09}
+SPEC_TRUE_STEP = 0.18
+
+
+def funnel_prediction_lines(s: Scenario) -> list[str]:
+    """``study.md`` lines: each funnel nominal's one-step prediction error along the expert's
+    flight (:func:`loopid.systems.funnel_nominal.prediction_errors`: velocity RMS, 10 noisy
+    flights), on the whole target and on the circles, next to SPEC §5.2's figures."""
+    from loopid.experiments.runner import setup
+    from loopid.systems.funnel_nominal import FUNNEL_NOMINALS, funnel_nominal, prediction_errors
+
+    st = setup(s)
+    task = st.plant.task
+    circles = slice(100, 499) if s.pads else None
+    rows = []
+    for kind in FUNNEL_NOMINALS:
+        model = funnel_nominal(kind, task)
+        whole = prediction_errors(model, task, st.K_expert)
+        on_circles = prediction_errors(model, task, st.K_expert, steps=circles)
+        rows.append((kind, whole, on_circles))
+    lines = [
+        "RMS over the velocity entries of the one-step prediction error, the expert flying the "
+        f"funnel (pads = {reading_text(s.pads)}, noise std {task.noise_std:g}, 10 flights); "
+        "`true step`: the RMS of the velocity's own change in one step.",
+        "",
+        "| nominal | whole flight | circles only | SPEC §5.2 |",
+        "|---|---|---|---|",
+    ]
+    for kind, whole, on_circles in rows:
+        lines.append(
+            f"| {kind} | {whole.prediction:.3f} | {on_circles.prediction:.3f} | "
+            f"{SPEC_PREDICTION[kind]:.2f} |"
+        )
+    whole, on_circles = rows[0][1], rows[0][2]
+    lines += [
+        f"| true step | {whole.true_step:.3f} | {on_circles.true_step:.3f} | "
+        f"{SPEC_TRUE_STEP:.2f} |",
+        "",
+    ]
+    return lines
+
+
+def _cpus() -> int:
+    import os
+
+    return os.cpu_count() or 1
+
+
+def write_outputs(
+    out: Path, table: pa.Table, base: dict[str, Scenario], *, command_s=None, prediction=None
+) -> None:
+    """``study.md`` and the figures from the study's table."""
+    out = Path(out)
+    seeds = len(np.unique(np.asarray(table["seed"])))
+    figures(table, out)
+    text = study_text(table, base, command_s=command_s, seeds=seeds, prediction=prediction)
+    write_atomic_bytes(text.encode(), out / "study.md")
+
+
+def load(out: Path) -> pa.Table:
+    """The study's ``study.parquet`` (its reading columns are strings, so it is read as it is
+    rather than through :func:`loopid.experiments.results.read_table`)."""
+    import pyarrow.parquet as pq
+
+    return pq.read_table(Path(out) / "study.parquet")
