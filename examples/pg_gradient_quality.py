@@ -34,8 +34,9 @@ def main() -> None:
     st = setup(s)
     plant = st.plant
     dyn = plant.dynamics
-    K1, _ = _agent(s, st).policy(_agent(s, st).init())
-    H, P, _ = budget(s.samples, s.pg_horizon, plant.horizon)
+    agent = _agent(s)
+    K1, _ = agent.policy(agent.init())
+    H, P = budget(s.samples, s.pg_horizon, plant.horizon)
     target = jnp.asarray(plant.task.target)
     x0 = jnp.asarray(plant.task.x0)
     Q, R = jnp.asarray(plant.task.Q), jnp.asarray(plant.task.R)

@@ -201,6 +201,15 @@ RAY_ADDRESS = typer.Option(
     None, "--ray-address", help="Join this Ray cluster (default: start a local one)."
 )
 QUIET = typer.Option(False, "--quiet", help="No progress output (errors only).")
+SEEDS = typer.Option(None, "--seeds", help="Number of seeds (default 20; --quick 2).")
+
+
+def _protocol_changes(quick: bool, seeds: int | None) -> dict:
+    """The scenario fields ``--quick`` and ``--seeds`` change on the paper's panels."""
+    changes = dict(QUICK) if quick else {}
+    if seeds is not None:
+        changes["seeds"] = seeds
+    return changes
 
 
 @app.command()
@@ -289,7 +298,7 @@ def _run_gym(config: Path, out: Path, quiet: bool) -> None:
 @app.command()
 def reproduce(
     out: Path = typer.Option(Path("runs/reproduce"), "--out", help="Run directory."),
-    seeds: int = typer.Option(None, "--seeds", help="Number of seeds (default 20; --quick 2)."),
+    seeds: int = SEEDS,
     quick: bool = typer.Option(
         False, "--quick", help="Smoke run: every panel and method, 2 seeds, 4 iterations."
     ),
@@ -305,9 +314,7 @@ def reproduce(
     t0 = time.perf_counter()
     check_executor(executor, ray_address)
     workers = _workers(executor, workers)
-    changes = dict(QUICK) if quick else {}
-    if seeds is not None:
-        changes["seeds"] = seeds
+    changes = _protocol_changes(quick, seeds)
     scenarios = [s.replace(**changes) for s in SCENARIOS.values()]
     _execute(
         out,
@@ -339,7 +346,7 @@ def reproduce(
 @app.command()
 def study(
     out: Path = typer.Option(Path("runs/study"), "--out", help="Study directory."),
-    seeds: int = typer.Option(None, "--seeds", help="Number of seeds (default 20; --quick 2)."),
+    seeds: int = SEEDS,
     quick: bool = typer.Option(
         False, "--quick", help="Smoke run: every reading, 2 seeds, 4 iterations."
     ),
@@ -372,9 +379,7 @@ def study(
     t0 = time.perf_counter()
     check_executor(executor, ray_address)
     workers = _workers(executor, workers)
-    changes = dict(QUICK) if quick else {}
-    if seeds is not None:
-        changes["seeds"] = seeds
+    changes = _protocol_changes(quick, seeds)
     base = {name: s.replace(**changes) for name, s in SCENARIOS.items()}
     scenarios, methods = study_cells(base)
     seed_list = check_cells(scenarios, methods, None)

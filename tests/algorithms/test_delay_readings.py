@@ -34,8 +34,13 @@ def delay_task():
     return make_task("hover-delay")
 
 
-def test_latency_and_fifo_give_the_expert_the_same_test_cost(delay_task):
-    K = expert_gains(delay_task)
+@pytest.fixture(scope="module")
+def K(delay_task):
+    """The linearised expert's gain ``[horizon, 4, 21]`` (SPEC §2)."""
+    return expert_gains(delay_task)
+
+
+def test_latency_and_fifo_give_the_expert_the_same_test_cost(delay_task, K):
     keys = seed_keys(np.arange(5))
     costs = {}
     for mode in ("fifo", "latency"):
@@ -62,8 +67,7 @@ def _replay(plant, tr, key):
     return jax.vmap(helicopter.to_error)(x_next, target[tr.t + 1])
 
 
-def test_latency_records_the_true_transition(delay_task):
-    K = expert_gains(delay_task)
+def test_latency_records_the_true_transition(delay_task, K):
     key = jax.random.key(3)
     plant = helicopter_plant(delay_task, delay_mode="latency")
     tr = jax.jit(plant.rollout)(K, key, 0.01)
@@ -84,8 +88,7 @@ def test_latency_records_the_true_transition(delay_task):
     np.testing.assert_allclose(np.asarray(q.dx_next), np.asarray(plain), atol=1e-13)
 
 
-def test_fifo_records_the_command_not_the_applied_change(delay_task):
-    K = expert_gains(delay_task)
+def test_fifo_records_the_command_not_the_applied_change(delay_task, K):
     key = jax.random.key(3)
     plant = helicopter_plant(delay_task, delay_mode="fifo")
     tr = jax.jit(plant.rollout)(K, key, 0.01)
@@ -93,8 +96,7 @@ def test_fifo_records_the_command_not_the_applied_change(delay_task):
     assert err.max() > 1e-3  # the recorded command is not what moved the state
 
 
-def test_nu_rollout_keeps_the_experts_own_transitions(delay_task):
-    K = expert_gains(delay_task)
+def test_nu_rollout_keeps_the_experts_own_transitions(delay_task, K):
     plant = helicopter_plant(delay_task, nu_pending="rollout")
     sample = jax.jit(nu_expert(plant, K), static_argnums=1)(jax.random.key(4), 50)
     # each sample is a row of the expert's rollout: a commanded change that acts one step later,
