@@ -230,13 +230,15 @@ def make_plant(
             if latency:  # act at once on the observation of d steps ago
                 observed = jnp.concatenate([memory, dx[None]], axis=0)
                 du = -K[jnp.maximum(tau - d, 0)] @ observed[0] + e
-                x_next, _ = step_delayed(x, no_fifo, du, w)
-                memory_next = observed[1:]
             else:  # command now, applied d steps later
                 du = -K[tau] @ dx + e
-                x_next, memory_next = step_delayed(x, memory, du, w)
             size = jnp.linalg.norm(jnp.concatenate([dx[:-1], du]))
             safe = jnp.isfinite(size) & (size <= stop_norm)
+            if latency:
+                x_next, _ = step_delayed(x, no_fifo, du, w)
+                memory_next = observed[1:]
+            else:
+                x_next, memory_next = step_delayed(x, memory, du, w)
             dx_next = to_error(x_next, target[tau + 1])
             restart = ~safe | (tau + 1 >= horizon)
             carry = (
