@@ -234,24 +234,13 @@ def medians_table(table: pa.Table) -> list[str]:
     return lines
 
 
-def findings_lines(table: pa.Table, r: Reading, base: dict[str, Scenario]) -> list[str]:
-    """The five findings of SPEC §4.5 on reading ``r``'s panels, each holds / does not hold."""
+def reading_findings(table: pa.Table, r: Reading, base: dict[str, Scenario]) -> list:
+    """The five findings of SPEC §4.5 (:func:`loopid.experiments.report.findings`) on reading
+    ``r``'s panels, each holds / does not hold."""
     from loopid.experiments.report import findings
 
     hover = {p for p in r.panels if base[p].task in ("hover", "hover-delay")}
-    out = []
-    for f in findings(_subtable(table, r.id), hover):
-        out.append(f"{f.number}. {f.claim} **{f.verdict}** (on means: {f.mean_verdict})")
-        out += [f"   - {d}" for d in f.details]
-    return out
-
-
-def verdicts(table: pa.Table, r: Reading, base: dict[str, Scenario]) -> list[str]:
-    """The five verdicts (on medians) of reading ``r``, in order."""
-    from loopid.experiments.report import findings
-
-    hover = {p for p in r.panels if base[p].task in ("hover", "hover-delay")}
-    return [f.verdict for f in findings(_subtable(table, r.id), hover)]
+    return findings(_subtable(table, r.id), hover)
 
 
 def figures(table: pa.Table, out: Path) -> list[Path]:
@@ -342,14 +331,16 @@ def study_text(
         "5 PG little |",
         "|---|---|---|---|---|---|---|",
     ]
+    found = {
+        r.id: reading_findings(table, r, base) for r in READINGS if _subtable(table, r.id).num_rows
+    }
     for r in READINGS:
-        if _subtable(table, r.id).num_rows == 0:
-            continue
-        v = verdicts(table, r, base)
-        L.append(f"| {r.id} | {', '.join(r.panels)} | " + " | ".join(v) + " |")
+        if r.id in found:
+            verdicts = [f.verdict for f in found[r.id]]
+            L.append(f"| {r.id} | {', '.join(r.panels)} | " + " | ".join(verdicts) + " |")
     L.append("")
     for r in READINGS:
-        if _subtable(table, r.id).num_rows == 0:
+        if r.id not in found:
             continue
         changes = ", ".join(f"`{k} = {v}`" for k, v in r.changes.items()) or "none"
         L += [
@@ -358,9 +349,11 @@ def study_text(
             f"Changes: {changes} (SPEC {r.spec}); panels: {', '.join(r.panels)}; "
             f"cells run: {', '.join(r.methods) or 'none (taken from ' + ', '.join(r.parts) + ')'}.",
             "",
-            *findings_lines(table, r, base),
-            "",
         ]
+        for f in found[r.id]:
+            L.append(f"{f.number}. {f.claim} **{f.verdict}** (on means: {f.mean_verdict})")
+            L += [f"   - {d}" for d in f.details]
+        L.append("")
     if prediction:
         L += [
             "## The funnel's nominal models along the expert's flight (SPEC §5.2)",
