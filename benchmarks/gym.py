@@ -2,7 +2,7 @@
 
 Workload: the Pendulum example (``examples/pendulum.toml``): 32 training slots of 200 steps of a
 linear policy with Gaussian action noise (``stop_norm`` restarts included), i.e. what one
-iteration of 5 seeds collects, through :meth:`loopid.systems.gym.GymSystem.rollouts` with
+iteration of 5 seeds collects, through :meth:`loopid.systems.from_gymnasium.GymSystem.rollouts` with
 ``num_envs`` sub-environments (SyncVectorEnv). Reference: the same episodes in a plain Python
 loop over one ``gymnasium.make("Pendulum-v1")`` (reset with options, policy, clip, step), the
 least a Gymnasium user could write. Best of 3 repeats; steps per second and the ratio to the
@@ -15,7 +15,7 @@ import gymnasium
 import numpy as np
 
 import loopid  # noqa: F401
-from loopid.systems.gym import GymSystem, Slot
+from loopid.systems.from_gymnasium import GymSystem, Slot
 
 OPTIONS = {"x_init": 0.3, "y_init": 0.5}
 K = np.array([[3.0, 0.5]])

@@ -119,7 +119,7 @@ class NumpyCell:
     def run_seed(self, seed: int, iterations: int):
         rng = np.random.default_rng(seed)
         n_test, m, H = S.test_trajectories, S.samples, 400
-        test_noise = rng.normal(size=(n_test, H, 6))
+        eval_noise = rng.normal(size=(n_test, H, 6))
         ZZ, ZY, count = np.zeros((25, 25)), np.zeros((25, 21)), 0
         K = self.lqr(self.A0, self.B0)
         costs = []
@@ -165,7 +165,7 @@ class NumpyCell:
                     total = total + np.einsum("bi,ij,bj->b", dx, self.Q, dx)
                     total = total + np.einsum("bi,ij,bj->b", du, self.R, du)
                     queue = np.concatenate([fifo, du[:, None]], 1)
-                    x, fifo = np_step(x, queue[:, 0], test_noise[:, t]), queue[:, 1:]
+                    x, fifo = np_step(x, queue[:, 0], eval_noise[:, t]), queue[:, 1:]
                 dx = self.to_error(x)
                 total = total + np.einsum("bi,ij,bj->b", dx, self.Q, dx)
                 total = np.where(np.isfinite(total), np.minimum(total, S.cost_cap), S.cost_cap)

@@ -9,9 +9,9 @@ Python loop over time), measured on a few steps and extrapolated. Times are afte
 (``block_until_ready``), best of a few repeats.
 
 A second table times the loop's test evaluation (one iteration of a hover-delay cell: 20 seeds ×
-100 test trajectories of 400 steps under the expert's gain): ``Plant.test_seeds``, every
+100 test trajectories of 400 steps under the expert's gain): ``Plant.eval_seeds``, every
 trajectory of every seed as one column batch ``[21, 2000]``, against the layout it replaced,
-``lax.map`` over seeds of ``vmap`` over trajectories of ``Plant.test_one`` (batch axis leading).
+``lax.map`` over seeds of ``vmap`` over trajectories of ``Plant.eval_one`` (batch axis leading).
 
     .venv/bin/python benchmarks/sim.py
 """
@@ -182,7 +182,7 @@ def main():
 
 def bench_test_evaluation():
     from loopid.algorithms.expert import expert_gains
-    from loopid.algorithms.loop import seed_keys, test_noise
+    from loopid.algorithms.loop import eval_noise, seed_keys
     from loopid.algorithms.plant import helicopter_plant
     from loopid.systems.tasks import make_task
 
@@ -190,12 +190,12 @@ def bench_test_evaluation():
     task = make_task("hover-delay")
     plant = helicopter_plant(task)
     K = jnp.broadcast_to(expert_gains(task), (seeds, plant.horizon, 4, 21))
-    W = test_noise(plant, seed_keys(np.arange(seeds)), n_test, "last").test
+    W = eval_noise(plant, seed_keys(np.arange(seeds)), n_test, "last").test
     per_seed = jnp.moveaxis(W, (2, 3), (0, 1))  # [S, n_test, horizon, 6]
-    columns = jax.jit(plant.test_seeds)
+    columns = jax.jit(plant.eval_seeds)
 
     def one_seed(a):
-        return jax.vmap(lambda v: plant.test_one(a[0], v))(a[1])
+        return jax.vmap(lambda v: plant.eval_one(a[0], v))(a[1])
 
     rows = jax.jit(lambda K, w: jax.lax.map(one_seed, (K, w)))
     a, b = columns(K, W)[0], rows(K, per_seed)[0]
@@ -207,8 +207,8 @@ def bench_test_evaluation():
           f"trajectories x {plant.horizon} steps), max relative difference {err:.1e}")  # fmt: skip
     print(f"{'implementation':52s} {'time [ms]':>9s} {'steps/s':>10s} {'ratio':>6s}")
     for label, sec in (
-        ("Plant.test_seeds (column batch [21, S*n_test])", t_col),
-        ("lax.map(seeds) of vmap(test_one) (reference)", t_row),
+        ("Plant.eval_seeds (column batch [21, S*n_test])", t_col),
+        ("lax.map(seeds) of vmap(eval_one) (reference)", t_row),
     ):
         print(f"{label:52s} {1e3 * sec:9.1f} {steps / sec:10.2e} {t_row / sec:5.1f}x")
 

@@ -16,8 +16,7 @@ import numpy as np
 import pytest
 
 from loopid.algorithms.expert import expert_gains
-from loopid.algorithms.loop import make_cell, seed_keys
-from loopid.algorithms.loop import test_noise as make_test_noise
+from loopid.algorithms.loop import eval_noise, make_cell, seed_keys
 from loopid.algorithms.model_based import linear_agent
 from loopid.algorithms.plant import helicopter_plant, make_plant
 from loopid.control import dlqr_affine
@@ -45,12 +44,12 @@ def test_latency_and_fifo_give_the_expert_the_same_test_cost(delay_task, K):
     costs = {}
     for mode in ("fifo", "latency"):
         plant = helicopter_plant(delay_task, delay_mode=mode)
-        W = make_test_noise(plant, keys, 20, "last").test
-        c, div = jax.jit(plant.test_seeds)(jnp.broadcast_to(K, (5, *K.shape)), W)
+        W = eval_noise(plant, keys, 20, "last").test
+        c, div = jax.jit(plant.eval_seeds)(jnp.broadcast_to(K, (5, *K.shape)), W)
         assert not np.asarray(div).any()
         costs[mode] = np.asarray(c)
         # the one-trajectory form agrees with the column batch under each mode
-        one = plant.test_one(K, jnp.moveaxis(W[:, :, 0, 0], 0, 0))
+        one = plant.eval_one(K, jnp.moveaxis(W[:, :, 0, 0], 0, 0))
         np.testing.assert_allclose(float(one[0]), costs[mode][0, 0], rtol=1e-12)
     # the same closed loop: only the R term differs (commanded vs applied changes, ~1e-12)
     np.testing.assert_allclose(costs["latency"], costs["fifo"], rtol=1e-9)
@@ -132,7 +131,7 @@ def _dagger_model(delay_mode: str):
     nu = nu_trajectory(plant, state_var=0.25, action_var=0.25)
     start, step = make_cell(plant, agent, nu, samples=100, iterations=ITERATIONS, n_test=10)
     keys = seed_keys(np.arange(3))
-    noise = make_test_noise(plant, keys, 10, "last")
+    noise = eval_noise(plant, keys, 10, "last")
     carry, _ = start(keys, noise)
     for n in range(2, ITERATIONS + 1):
         carry, _ = step(carry, keys, noise, jnp.int32(n), jnp.float64(0.5))

@@ -42,8 +42,8 @@ def test_tvlqr_on_the_true_linearisation_flies_the_funnel_like_the_expert():
 
     A, B = jax.vmap(linearise)(flight.dx, flight.du, flight.t)
     K = finite_horizon_gains(A, B, task.Q, task.R, plant.horizon)
-    noise = loop.test_noise(plant, loop.seed_keys(np.arange(2)), 10, "last").test
-    oracle = plant.test_seeds(jnp.stack([K, K]), noise)[0]
-    expert = plant.test_seeds(jnp.stack([K_expert, K_expert]), noise)[0]
+    noise = loop.eval_noise(plant, loop.seed_keys(np.arange(2)), 10, "last").test
+    oracle = plant.eval_seeds(jnp.stack([K, K]), noise)[0]
+    expert = plant.eval_seeds(jnp.stack([K_expert, K_expert]), noise)[0]
     assert float(jnp.max(expert)) < 60.0  # SPEC: about 49.4
     np.testing.assert_allclose(np.asarray(oracle), np.asarray(expert), rtol=0.02)

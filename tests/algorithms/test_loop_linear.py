@@ -12,8 +12,7 @@ import numpy as np
 import pytest
 
 from loopid.algorithms import methods as M
-from loopid.algorithms.loop import make_cell, run_learning, seed_keys
-from loopid.algorithms.loop import test_noise as make_test_noise
+from loopid.algorithms.loop import eval_noise, make_cell, run_learning, seed_keys
 from loopid.algorithms.model_based import linear_agent
 from loopid.algorithms.plant import make_plant
 from loopid.control import dlqr_affine
@@ -54,7 +53,7 @@ class LinearSetup:
         self.agent = linear_agent(self.nominal, self.learner, task.Q, task.R, HORIZON)
         self.nu = nu_trajectory(self.plant, state_var=0.25, action_var=0.25)
         self.keys = seed_keys(SEEDS)
-        self.noise = make_test_noise(self.plant, self.keys, N_TEST, "last")
+        self.noise = eval_noise(self.plant, self.keys, N_TEST, "last")
         self.start, self.step = make_cell(
             self.plant, self.agent, self.nu, samples=SAMPLES, iterations=ITERATIONS, n_test=N_TEST
         )
@@ -78,7 +77,7 @@ class LinearSetup:
         """Mean test cost [S] of the optimal LQR policy on the loop's test noise."""
         K = jnp.broadcast_to(self.K_opt, (HORIZON, *self.K_opt.shape))
         S = self.noise.test.shape[2]
-        costs, _ = self.plant.test_seeds(jnp.broadcast_to(K, (S, *K.shape)), self.noise.test)
+        costs, _ = self.plant.eval_seeds(jnp.broadcast_to(K, (S, *K.shape)), self.noise.test)
         return np.asarray(costs).mean(axis=1)
 
 

@@ -15,8 +15,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from loopid.algorithms.loop import Agent, SolverInfo, seed_keys
-from loopid.algorithms.loop import test_noise as make_test_noise
+from loopid.algorithms.loop import Agent, SolverInfo, eval_noise, seed_keys
 from loopid.algorithms.plant import Plant, make_plant
 from loopid.algorithms.policy_gradient import (
     budget,
@@ -179,9 +178,9 @@ def test_rollouts_lower_the_lq_cost(lq):
         samples_mode="rollouts",
     )  # fmt: skip
     rows = trace.rows
-    noise = make_test_noise(lq.plant, seed_keys(seeds), n_test, "last").test
+    noise = eval_noise(lq.plant, seed_keys(seeds), n_test, "last").test
     K_opt = jnp.broadcast_to(jnp.asarray(lq.K_opt), (len(seeds), T, M_ACT, K_STATE + 1))
-    opt = np.asarray(lq.plant.test_seeds(K_opt, noise)[0]).mean(axis=1)
+    opt = np.asarray(lq.plant.eval_seeds(K_opt, noise)[0]).mean(axis=1)
     first, last = rows.test_cost[:, 0], rows.test_cost[:, -1]
     assert np.all(first > 1.3 * opt)  # the start is clearly suboptimal, so the check can fail
     assert np.all(last < 0.9 * first), (first, last)

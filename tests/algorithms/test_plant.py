@@ -1,5 +1,5 @@
 """The plant's batched test (every seed's test trajectories as one column batch) against one
-trajectory at a time (``test_one``), for a system with column support (the helicopter, with and
+trajectory at a time (``eval_one``), for a system with column support (the helicopter, with and
 without delay) and one without (the linear system, through the ``vmap`` fallback)."""
 
 import jax
@@ -8,18 +8,17 @@ import numpy as np
 import pytest
 
 from loopid.algorithms.expert import expert_gains
-from loopid.algorithms.loop import seed_keys
-from loopid.algorithms.loop import test_noise as make_test_noise
+from loopid.algorithms.loop import eval_noise, seed_keys
 from loopid.algorithms.plant import helicopter_plant, make_plant, noise_columns
 from loopid.systems.linear import linear_dynamics, linear_task
 from loopid.systems.tasks import make_task
 
 
 def _check(plant, K, n_test=7, seeds=3):
-    W = make_test_noise(plant, seed_keys(np.arange(seeds)), n_test, "last").test
-    costs, diverged = jax.jit(plant.test_seeds)(K, W)
+    W = eval_noise(plant, seed_keys(np.arange(seeds)), n_test, "last").test
+    costs, diverged = jax.jit(plant.eval_seeds)(K, W)
     per_seed = jnp.moveaxis(W, (2, 3), (0, 1))  # [S, n_test, horizon, k]
-    one = jax.jit(jax.vmap(lambda k, w: jax.vmap(lambda ww: plant.test_one(k, ww))(w)))
+    one = jax.jit(jax.vmap(lambda k, w: jax.vmap(lambda ww: plant.eval_one(k, ww))(w)))
     ref_costs, ref_div = one(K, per_seed)
     np.testing.assert_allclose(costs, ref_costs, rtol=1e-12)
     np.testing.assert_array_equal(diverged, ref_div)

@@ -12,8 +12,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from loopid.algorithms.loop import seed_keys
-from loopid.algorithms.loop import test_noise as loop_test_noise
+from loopid.algorithms.loop import eval_noise, seed_keys
 from loopid.experiments.results import trace_table
 from loopid.experiments.runner import _agent, run, setup
 from loopid.experiments.scenarios import scenario
@@ -99,12 +98,12 @@ def test_expert_and_learners_share_the_test_noise(traces):
     agent = _agent(SCENARIO)
     K1, _ = jax.jit(agent.policy)(agent.init())
     n_test = SCENARIO.test_trajectories
-    columns = loop_test_noise(st.plant, seed_keys(np.arange(SCENARIO.seeds)), n_test, "last").test
+    columns = eval_noise(st.plant, seed_keys(np.arange(SCENARIO.seeds)), n_test, "last").test
     noise = jnp.moveaxis(columns, (2, 3), (0, 1))  # [S, n_test, horizon, 6]
 
     @jax.jit
-    def mean_costs(K):  # one trajectory at a time (test_one), not the loop's column batch
-        one_seed = jax.vmap(lambda w: st.plant.test_one(K, w)[0])
+    def mean_costs(K):  # one trajectory at a time (eval_one), not the loop's column batch
+        one_seed = jax.vmap(lambda w: st.plant.eval_one(K, w)[0])
         return jax.vmap(lambda w: jnp.mean(one_seed(w)))(noise)
 
     np.testing.assert_allclose(

@@ -86,9 +86,9 @@ def test_trim_holding_base_flies_pi1s_test_trajectories():
     base, free = pg_base(st.plant, K1, hold=True)
     assert not np.allclose(base, K1)
     assert free.sum() == 4 * (21 - 8) and np.all(free[:, :8] == 0)
-    noise = st.plant.test_noise(jax.random.key(0), 3)
+    noise = st.plant.eval_noise(jax.random.key(0), 3)
     np.testing.assert_allclose(
-        st.plant.test_costs(base, noise)[0], st.plant.test_costs(K1, noise)[0], rtol=1e-12
+        st.plant.eval_costs(base, noise)[0], st.plant.eval_costs(K1, noise)[0], rtol=1e-12
     )
     same, everywhere = pg_base(st.plant, K1, hold=False)
     assert same is K1 and np.all(everywhere == 1)

@@ -1,4 +1,4 @@
-"""Algorithm 1 for systems that are not JAX functions (a Gymnasium env, :mod:`loopid.systems.gym`).
+"""Algorithm 1 for systems that are not JAX functions (a Gymnasium env, :mod:`loopid.systems.from_gymnasium`).
 
 Same semantics as :func:`loopid.algorithms.loop.run_learning`: iteration 1 solves the initial
 model; iteration n = 2..N collects, for every seed, ``ceil(m / horizon)`` training slots of the
@@ -16,12 +16,12 @@ run and shared by every method through ``cell``).
 Randomness: slot seeds are ``SeedSequence([seed, n, stream]).generate_state(k, uint32)`` with
 streams 1 (policy), 2 (ν) and 3 (test, with n = 0: the same test episodes at every iteration and
 for every method at that seed, i.e. common random numbers); each slot seeds its env resets and
-action noise (:mod:`loopid.systems.gym`). The draws and the policy/ν choice use JAX keys
+action noise (:mod:`loopid.systems.from_gymnasium`). The draws and the policy/ν choice use JAX keys
 ``fold_in(fold_in(key(seed), 1), n)`` as the JAX loop does.
 
 Test cost of one episode: ``Σ_t c(o_t, a_t)`` over the actions taken (plus ``termination_cost``
 if it ended by ``terminated``), capped at ``cost_cap``; an episode that reaches the cap or a
-non-finite value counts as diverged. ``c`` is a :class:`~loopid.systems.gym.QuadraticCost` (on
+non-finite value counts as diverged. ``c`` is a :class:`~loopid.systems.from_gymnasium.QuadraticCost` (on
 the observed entries), ``"reward"`` (the env's own reward, negated: ``c_t = −r_t``) or any
 callable ``cost(obs, action) -> float`` on the raw observation. The tested policy is the last
 one.
@@ -39,7 +39,7 @@ from loopid.algorithms.model_based import linear_agent
 from loopid.algorithms.plant import Transitions, draw, select
 from loopid.learners import ftrl_least_squares
 from loopid.models.linear_offset import LinearOffsetModel
-from loopid.systems.gym import GymSystem, QuadraticCost, Rollouts, Slot
+from loopid.systems.from_gymnasium import GymSystem, QuadraticCost, Rollouts, Slot
 
 _TRAIN = 1
 _POLICY, _NU, _TEST = 1, 2, 3
@@ -196,7 +196,7 @@ def run_learning_host(
     """Run one learning method on a host system for ``len(fractions)`` iterations, every seed.
 
     ``fractions[n−1]`` = ``p_n`` (``fractions[0]`` unused); ``cost(obs, action) -> float`` is the
-    test cost (:class:`~loopid.systems.gym.QuadraticCost` or any callable); ``progress(n, row)``
+    test cost (:class:`~loopid.systems.from_gymnasium.QuadraticCost` or any callable); ``progress(n, row)``
     after each iteration; ``cell`` from :func:`make_host_cell` to reuse its compilation.
     """
     fractions = np.asarray(fractions, dtype=np.float64)

@@ -159,9 +159,9 @@ def seed_keys(seeds) -> jax.Array:
     return jax.vmap(jax.random.key)(jnp.asarray(seeds, dtype=jnp.uint32))
 
 
-class TestNoise(NamedTuple):
+class EvalNoise(NamedTuple):
     """The test noise of every seed, ``test [horizon, n_noise, S, n_test]`` (the column layout of
-    :meth:`Plant.test_seeds`), and for ``best`` the selection noise ``select``, likewise."""
+    :meth:`Plant.eval_seeds`), and for ``best`` the selection noise ``select``, likewise."""
 
     test: jax.Array
     select: jax.Array
@@ -170,7 +170,7 @@ class TestNoise(NamedTuple):
 _NOISE_PROGRAMS: dict = {}
 
 
-def test_noise(plant: Plant, keys: jax.Array, n_test: int, test_policy: str) -> TestNoise:
+def eval_noise(plant: Plant, keys: jax.Array, n_test: int, test_policy: str) -> EvalNoise:
     """The test (and selection) noise of every seed, ``[horizon, n_noise, S, n_test]``.
 
     One compiled program per plant and shape, reused by every method of a run."""
@@ -179,10 +179,10 @@ def test_noise(plant: Plant, keys: jax.Array, n_test: int, test_policy: str) -> 
     if cached is None or cached[0] is not plant:
 
         def one(key):
-            test = plant.test_noise(jax.random.fold_in(key, _TEST), n_test)
+            test = plant.eval_noise(jax.random.fold_in(key, _TEST), n_test)
             if test_policy != "best":
-                return TestNoise(test, jnp.zeros((0,), test.dtype))
-            return TestNoise(test, plant.test_noise(jax.random.fold_in(key, _SELECT), n_test))
+                return EvalNoise(test, jnp.zeros((0,), test.dtype))
+            return EvalNoise(test, plant.eval_noise(jax.random.fold_in(key, _SELECT), n_test))
 
         def columns(keys):
             return jax.tree_util.tree_map(noise_columns, jax.vmap(one)(keys))
@@ -191,25 +191,25 @@ def test_noise(plant: Plant, keys: jax.Array, n_test: int, test_policy: str) -> 
     return cached[1](keys)
 
 
-def _evaluate(plant: Plant, carry: _Carry, K, keys, noise: TestNoise, n, test_policy: str):
+def _evaluate(plant: Plant, carry: _Carry, K, keys, noise: EvalNoise, n, test_policy: str):
     """Test every seed's policy ``K [S, horizon, m, n]``; returns (costs [S, n_test], diverged
     [S, n_test], new carry)."""
     carry = carry._replace(K=K)
     if test_policy == "last":
-        costs, div = plant.test_seeds(K, noise.test)
+        costs, div = plant.eval_seeds(K, noise.test)
     elif test_policy == "best":
-        score = jnp.mean(plant.test_seeds(K, noise.select)[0], axis=1)
+        score = jnp.mean(plant.eval_seeds(K, noise.select)[0], axis=1)
         better = score < carry.best_cost
         best_K = jnp.where(better[:, None, None, None], K, carry.best_K)
         carry = carry._replace(best_K=best_K, best_cost=jnp.minimum(score, carry.best_cost))
-        costs, div = plant.test_seeds(best_K, noise.test)
+        costs, div = plant.eval_seeds(best_K, noise.test)
     else:  # the uniform mixture: one of π_1..π_n drawn per test trajectory
         history = carry.history.at[:, n - 1].set(K)
         carry = carry._replace(history=history)
 
         def one_seed(hist, key, w):  # w [horizon, n_noise, n_test]
             pick = jax.random.randint(jax.random.fold_in(key, _SELECT), (w.shape[-1],), 0, n)
-            return jax.vmap(plant.test_one, in_axes=(0, -1))(hist[pick], w)
+            return jax.vmap(plant.eval_one, in_axes=(0, -1))(hist[pick], w)
 
         costs, div = jax.vmap(one_seed, in_axes=(0, 0, 2))(history, keys, noise.test)
     return costs, div, carry
@@ -232,11 +232,11 @@ def make_cell(
 
     Collection and the learner's update are vmapped over seeds; the solve runs as the agent's
     ``policies`` says (default seed by seed, ``seeds_in_turn``) and the test trajectories of all
-    seeds as one batch (:meth:`Plant.test_seeds`), all inside the same compiled call.
+    seeds as one batch (:meth:`Plant.eval_seeds`), all inside the same compiled call.
 
     ``start(keys [S], noise) -> (carry, Row)`` solves and tests the initial model (iteration 1);
     ``step(carry, keys, noise, n, p, which=0) -> (carry, Row)`` runs iteration ``n`` with policy
-    fraction ``p``; ``noise`` is :func:`test_noise` of the same keys. ``nu`` may be a list of
+    fraction ``p``; ``noise`` is :func:`eval_noise` of the same keys. ``nu`` may be a list of
     samplers, of which ``which`` (traced, so one compiled program serves them all: ν_t, ν_e and
     ν_en, with DAgger, Batch and Abbeel) picks the one to draw from.
     """
@@ -367,7 +367,7 @@ def run_learning(
             gamma=gamma, test_policy=test_policy,
         )  # fmt: skip
     start, step = cell
-    noise = test_noise(plant, keys, n_test, test_policy)
+    noise = eval_noise(plant, keys, n_test, test_policy)
     carry, row = start(keys, noise)
     rows = [row]
     if progress:
@@ -397,12 +397,12 @@ def run_fixed_policy(
     is repeated (a flat line); the diagnostics are 0 and the solver status True.
     """
     keys = seed_keys(seeds)
-    noise = test_noise(plant, keys, n_test, "last")
+    noise = eval_noise(plant, keys, n_test, "last")
 
     @jax.jit
     def test(w):
         S = w.shape[2]
-        costs, div = plant.test_seeds(jnp.broadcast_to(K, (S, *K.shape)), w)
+        costs, div = plant.eval_seeds(jnp.broadcast_to(K, (S, *K.shape)), w)
         zero, count = jnp.zeros(S), jnp.zeros(S, jnp.int32)
         return Row(
             jnp.mean(costs, axis=1), jnp.median(costs, axis=1), jnp.sum(div, axis=1), zero, zero,

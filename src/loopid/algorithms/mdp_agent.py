@@ -84,22 +84,22 @@ class MDPPlant(NamedTuple):
     mdp: FiniteMDP
     horizon: int
     rollout: Callable[[jax.Array, jax.Array], MDPTransitions]
-    test_one: Callable[[jax.Array, jax.Array], tuple[jax.Array, jax.Array]]
+    eval_one: Callable[[jax.Array, jax.Array], tuple[jax.Array, jax.Array]]
 
-    def test_noise(self, key: jax.Array, n_test: int) -> jax.Array:
+    def eval_noise(self, key: jax.Array, n_test: int) -> jax.Array:
         """A dummy ``[n_test, 1]``: the test is exact."""
         return jnp.zeros((n_test, 1), jnp.float64)
 
-    def test_costs(self, K: jax.Array, noise: jax.Array) -> tuple[jax.Array, jax.Array]:
+    def eval_costs(self, K: jax.Array, noise: jax.Array) -> tuple[jax.Array, jax.Array]:
         """``J_μ(π)`` repeated ``n_test`` times and no divergence."""
-        J, _ = self.test_one(K, noise[0])
+        J, _ = self.eval_one(K, noise[0])
         n = noise.shape[0]
         return jnp.full((n,), J), jnp.zeros((n,), bool)
 
-    def test_seeds(self, K: jax.Array, noise: jax.Array) -> tuple[jax.Array, jax.Array]:
-        """:meth:`test_costs` of every seed: ``K [S, …]``, ``noise [1, S, n_test]`` (the column
-        layout of :meth:`loopid.algorithms.plant.Plant.test_seeds`)."""
-        J = jax.vmap(lambda k: self.test_one(k, noise[:, 0, 0])[0])(K)
+    def eval_seeds(self, K: jax.Array, noise: jax.Array) -> tuple[jax.Array, jax.Array]:
+        """:meth:`eval_costs` of every seed: ``K [S, …]``, ``noise [1, S, n_test]`` (the column
+        layout of :meth:`loopid.algorithms.plant.Plant.eval_seeds`)."""
+        J = jax.vmap(lambda k: self.eval_one(k, noise[:, 0, 0])[0])(K)
         return jnp.broadcast_to(J[:, None], noise.shape[1:]), jnp.zeros(noise.shape[1:], bool)
 
 
@@ -125,11 +125,11 @@ def mdp_plant(mdp: FiniteMDP, horizon: int) -> MDPPlant:
         _, (s, a, s_next, t) = jax.lax.scan(body, s0, (u, jnp.arange(horizon, dtype=jnp.int32)))
         return MDPTransitions(s, a, s_next, t, jnp.ones((horizon,), bool))
 
-    def test_one(K: jax.Array, noise: jax.Array) -> tuple[jax.Array, jax.Array]:
+    def eval_one(K: jax.Array, noise: jax.Array) -> tuple[jax.Array, jax.Array]:
         J = mu @ evaluate(P, mdp.C, mdp.gamma, K)
         return J, jnp.bool_(False)
 
-    return MDPPlant(mdp, int(horizon), rollout, test_one)
+    return MDPPlant(mdp, int(horizon), rollout, eval_one)
 
 
 def explicit_nu(mdp: FiniteMDP, dist) -> Callable[[jax.Array, int], MDPTransitions]:

@@ -11,20 +11,20 @@ pure operations that Algorithm 1 of Ross & Bagnell (2012) needs:
   ``t``, apply ``du``, observe ``x'`` (SPEC §3: with delay d the pending FIFO holds ``du`` for
   ``nu_pending="hold"`` (and ``"rollout"``, whose ν_e/ν_en samples skip the query), zeros for
   ``"zero"``; under ``delay_mode="latency"`` a plain one-step query, ``x' = f(x, du)``).
-- ``test_noise(key, n_test)``: the process noise ``[n_test, horizon, 6]`` of ``n_test`` test
+- ``eval_noise(key, n_test)``: the process noise ``[n_test, horizon, 6]`` of ``n_test`` test
   trajectories (trajectory i from ``jax.random.split(key, n_test)[i]``).
-- ``test_costs(K, noise)``: the test trajectories driven by that noise over the whole target,
+- ``eval_costs(K, noise)``: the test trajectories driven by that noise over the whole target,
   no early stop; each total cost ``Σ Δx_tᵀQΔx_t + Σ Δu_tᵀRΔu_t`` is capped at ``cost_cap``, and
   one that reaches the cap or a non-finite state counts as diverged. No NaN leaves here.
-  ``test_seeds(K, noise)`` does the same for every seed at once.
+  ``eval_seeds(K, noise)`` does the same for every seed at once.
 
 Speed: the test trajectories are most of the loop's arithmetic (SPEC §4.4: 100 per seed and
-iteration). ``test_seeds`` runs all of them (every seed's) as one column batch, ``x [n_x,
+iteration). ``eval_seeds`` runs all of them (every seed's) as one column batch, ``x [n_x,
 S·n_test]``, so each state component is a contiguous vector over the batch and one ``lax.scan``
 step advances every trajectory; on a CPU this is 2.8x faster (``benchmarks/sim.py``) than
 ``vmap`` of one trajectory (whose batch axis ends up leading, with the 21 components as the
-short minor axis). ``test_one`` stays the plain one-trajectory form: the mixture policy's path
-and the reference ``test_seeds`` is tested against.
+short minor axis). ``eval_one`` stays the plain one-trajectory form: the mixture policy's path
+and the reference ``eval_seeds`` is tested against.
 
 Policies are time-varying affine gains in error coordinates, ``K: [horizon, m, n]``: the error
 state ends with the constant 1, so the last column of ``K_t`` is the feedforward term.
@@ -128,29 +128,29 @@ class Plant(NamedTuple):
     n_action: int
     rollout: Callable[..., Transitions]
     query: Callable[..., Transitions]
-    test_one: Callable[..., tuple[jax.Array, jax.Array]]
-    test_seeds: Callable[..., tuple[jax.Array, jax.Array]]
+    eval_one: Callable[..., tuple[jax.Array, jax.Array]]
+    eval_seeds: Callable[..., tuple[jax.Array, jax.Array]]
     noise_std: float
     dynamics: Dynamics
     delay_mode: str = "fifo"
     nu_pending: str = "hold"
 
-    def test_noise(self, key: jax.Array, n_test: int) -> jax.Array:
+    def eval_noise(self, key: jax.Array, n_test: int) -> jax.Array:
         """Process noise ``[n_test, horizon, n_noise]`` of ``n_test`` test trajectories."""
         keys = jax.random.split(key, n_test)
         sequence = self.dynamics.noise_sequence
         return jax.vmap(lambda k: sequence(k, self.horizon, self.noise_std))(keys)
 
-    def test_costs(self, K: jax.Array, noise: jax.Array) -> tuple[jax.Array, jax.Array]:
+    def eval_costs(self, K: jax.Array, noise: jax.Array) -> tuple[jax.Array, jax.Array]:
         """Capped costs ``[n_test]`` and diverged flags of the test trajectories of ``K`` driven by
         ``noise [n_test, horizon, 6]`` (the same noise for every policy: common random numbers)."""
-        costs, diverged = self.test_seeds(K[None], noise_columns(noise[None]))
+        costs, diverged = self.eval_seeds(K[None], noise_columns(noise[None]))
         return costs[0], diverged[0]
 
 
 def noise_columns(noise: jax.Array) -> jax.Array:
     """Test noise ``[S, n_test, horizon, n_noise]`` (per seed, per trajectory) in the layout of
-    :meth:`Plant.test_seeds`, ``[horizon, n_noise, S, n_test]``."""
+    :meth:`Plant.eval_seeds`, ``[horizon, n_noise, S, n_test]``."""
     return jnp.moveaxis(noise, (0, 1), (-2, -1))
 
 
@@ -264,7 +264,7 @@ def make_plant(
         one = Transitions(x[None], dx[None], du[None], dx_next[None], t[None], jnp.ones(1, bool))
         return jax.tree_util.tree_map(lambda a: a[0], clean(one))
 
-    def test_one(K: jax.Array, noise: jax.Array) -> tuple[jax.Array, jax.Array]:
+    def eval_one(K: jax.Array, noise: jax.Array) -> tuple[jax.Array, jax.Array]:
         """Capped total cost and diverged flag of one test trajectory of ``K`` under process
         noise ``[horizon, 6]``."""
 
@@ -290,11 +290,11 @@ def make_plant(
         diverged = ~jnp.isfinite(total) | (total >= cost_cap)
         return jnp.where(diverged, cost_cap, total), diverged
 
-    def test_seeds(K: jax.Array, W: jax.Array) -> tuple[jax.Array, jax.Array]:
+    def eval_seeds(K: jax.Array, W: jax.Array) -> tuple[jax.Array, jax.Array]:
         """Capped costs and diverged flags ``[S, n_test]`` of every seed's test trajectories: seed
         s runs ``K[s]`` (``K [S, horizon, m, n]``) under the noise ``W[:, :, s]`` of
         ``W [horizon, n_noise, S, n_test]`` (:func:`noise_columns`: time-major, so the scan
-        reads it without a copy). The same numbers as :func:`test_one` on each trajectory."""
+        reads it without a copy). The same numbers as :func:`eval_one` on each trajectory."""
         S, n_test = W.shape[2:]
         b = S * n_test  # one flat batch: trajectory i of seed s is column s·n_test + i
         if latency:  # step τ uses the gain of the observed step τ − d
@@ -330,7 +330,7 @@ def make_plant(
         return jnp.where(diverged, cost_cap, total), diverged
 
     return Plant(
-        task, horizon, n, m, rollout, query, test_one, test_seeds, std, dynamics, delay_mode,
+        task, horizon, n, m, rollout, query, eval_one, eval_seeds, std, dynamics, delay_mode,
         nu_pending,
     )  # fmt: skip
 

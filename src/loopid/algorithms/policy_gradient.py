@@ -114,7 +114,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from loopid.algorithms.loop import Agent, Row, Trace, _trace, seed_keys, test_noise
+from loopid.algorithms.loop import Agent, Row, Trace, _trace, eval_noise, seed_keys
 from loopid.algorithms.plant import Plant
 
 _TRAIN = 1
@@ -344,9 +344,9 @@ def run_policy_gradient(
     )  # fmt: skip
 
     def evaluate(theta, noise):
-        """Every seed's test row; ``theta [S, m, n]``, noise in :meth:`Plant.test_seeds`' layout."""
+        """Every seed's test row; ``theta [S, m, n]``, noise in :meth:`Plant.eval_seeds`' layout."""
         S = theta.shape[0]
-        costs, div = plant.test_seeds(base[None] + theta[:, None], noise)
+        costs, div = plant.eval_seeds(base[None] + theta[:, None], noise)
         zero = jnp.zeros(S)
         count = jnp.full(S, used, jnp.int32)  # every sample is of the (perturbed) policy
         return Row(
@@ -360,7 +360,7 @@ def run_policy_gradient(
         state, _ = jax.vmap(one_step)(state, k)
         return state, evaluate(state.theta, noise)
 
-    noise = test_noise(plant, keys, n_test, "last").test
+    noise = eval_noise(plant, keys, n_test, "last").test
     S = keys.shape[0]
     one = init_state(free, step * sigma * np.sqrt(m), probes=P)
     state = jax.tree_util.tree_map(lambda a: jnp.broadcast_to(a, (S, *a.shape)), one)

@@ -40,7 +40,7 @@ from loopid.algorithms.host_loop import (
 )
 from loopid.experiments.results import trace_table
 from loopid.experiments.rundir import RunDir
-from loopid.systems.gym import (
+from loopid.systems.from_gymnasium import (
     CallablePolicy,
     GymSystem,
     OpenLoopPolicy,

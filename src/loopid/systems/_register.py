@@ -15,6 +15,6 @@ def register_envs() -> None:
         if env_id not in gymnasium.registry:
             gymnasium.register(
                 id=env_id,
-                entry_point="loopid.systems.envs:HelicopterEnv",
+                entry_point="loopid.systems.as_gymnasium:HelicopterEnv",
                 kwargs={"task": task},
             )

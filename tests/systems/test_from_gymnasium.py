@@ -15,7 +15,7 @@ from loopid.algorithms.host_loop import (
     run_learning_host,
 )
 from loopid.systems import helicopter
-from loopid.systems.gym import (
+from loopid.systems.from_gymnasium import (
     CallablePolicy,
     GymSystem,
     LinearPolicy,

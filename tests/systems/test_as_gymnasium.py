@@ -7,7 +7,7 @@ import pytest
 from gymnasium.utils.env_checker import check_env
 
 from loopid.systems import helicopter as h
-from loopid.systems.envs import HelicopterEnv
+from loopid.systems.as_gymnasium import HelicopterEnv
 from loopid.systems.tasks import trajectory_cost
 
 IDS = ["loopid/HelicopterHover-v0", "loopid/HelicopterHoverDelay-v0", "loopid/HelicopterFunnel-v0"]

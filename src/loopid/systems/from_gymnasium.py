@@ -1,0 +1,485 @@
+"""Any Gymnasium environment with Box observations and actions as the real system of the loop.
+
+A Gymnasium env has a *reset model* only (no generative model: the state cannot be set), so all
+data comes from rollouts, collected many at once through a Gymnasium vector environment
+(``SyncVectorEnv`` by default, ``AsyncVectorEnv`` on request) with autoreset *disabled*: the
+adapter resets each sub-environment itself, with an explicit seed, when its episode ends.
+
+Coordinates (what models and controllers see), for a target observation ``o*`` [n_obs] and an
+operating action ``a_op`` [m]::
+
+    Δx = [o[observe] − o*; 1]  [n = n_obs + 1]   (the constant 1 makes models and LQR affine)
+    Δu = a − a_op              [m]
+
+``observe`` (default: every entry) selects the observation entries the model sees, so n_obs may be
+smaller than the env's observation size (Pendulum: sin θ and θ̇, leaving out cos θ, which a linear
+model cannot follow: cos θ − 1 ≈ −θ²/2 looks like an unstable mode no linear control reaches).
+
+Policies are affine gains ``K: [horizon, m, n]`` with ``a_t = a_op − K_τ Δx_t`` (τ = steps since
+the episode's reset), as in :mod:`loopid.algorithms.plant`. Every action is clipped to the action
+Box and cast to its dtype before the step; the transition records the action actually applied.
+
+A *slot* is one fixed-shape buffer of ``horizon`` steps (:class:`Slot`): its episode stops at
+``terminated``, ``truncated``, after ``horizon`` actions, at a non-finite action, or (training
+slots, ``restart=True``) when ``‖[Δx_{:−1}; Δu]‖₂ > stop_norm``; a training slot then resets and
+goes on filling its buffer (as the JAX plant restarts from μ); a test slot masks the rest.
+
+Seeding: slot ``j`` owns a NumPy generator ``default_rng(seed_j)``; it draws the action noise
+``ε [horizon, m]`` first, then one reset seed per episode (``integers(2**32)``). Every reset of a
+used sub-environment is seeded, so a slot's data depends on its seed alone, not on which
+sub-environment ran it or on ``num_envs``. (Sub-environments left idle once the queue is empty
+are reset with seed 0 and their steps discarded.)
+"""
+
+from __future__ import annotations
+
+import copy
+from collections.abc import Callable, Sequence
+from typing import Any, NamedTuple
+
+import gymnasium
+import numpy as np
+from gymnasium.vector import AutoresetMode
+
+__all__ = [
+    "CallablePolicy",
+    "GymSystem",
+    "LinearPolicy",
+    "OpenLoopPolicy",
+    "QuadraticCost",
+    "Rollouts",
+    "Slot",
+    "make_env_fn",
+    "quadratic_cost",
+    "slot_streams",
+]
+
+
+# ----------------------------------------------------------------------------- costs
+class QuadraticCost(NamedTuple):
+    """``c(o, a) = (o − o*)ᵀ Q (o − o*) + (a − a_op)ᵀ R (a − a_op)`` (SPEC §4.1 on observations).
+
+    ``target`` [n_obs], ``Q`` [n_obs, n_obs], ``R`` [m, m], ``a_op`` [m]. Callable on one pair
+    (returns a float) or on batches ``obs [..., n_obs]``, ``action [..., m]`` (returns ``[...]``).
+    """
+
+    target: np.ndarray
+    Q: np.ndarray
+    R: np.ndarray
+    a_op: np.ndarray
+
+    def __call__(self, obs, action):
+        e = np.asarray(obs, np.float64) - self.target
+        d = np.asarray(action, np.float64) - self.a_op
+        c = np.einsum("...i,ij,...j->...", e, self.Q, e) + np.einsum(
+            "...i,ij,...j->...", d, self.R, d
+        )
+        return float(c) if np.ndim(c) == 0 else c
+
+    def augmented(self) -> tuple[np.ndarray, np.ndarray]:
+        """(Q_aug [n, n], R [m, m]): Q on ``Δx = [o − o*; 1]``, 0 on the constant coordinate."""
+        n_obs = self.Q.shape[0]
+        Qa = np.zeros((n_obs + 1, n_obs + 1))
+        Qa[:n_obs, :n_obs] = self.Q
+        return Qa, self.R
+
+
+def _square(name: str, value, size: int) -> np.ndarray:
+    """A [size, size] PSD matrix from a full matrix, a diagonal vector or a scalar."""
+    M = np.asarray(value, dtype=np.float64)
+    if M.ndim == 0:
+        M = np.full(size, float(M))
+    if M.ndim == 1:
+        if M.shape != (size,):
+            raise ValueError(
+                f"{name} must have {size} diagonal entries or be {size}x{size}, got shape {M.shape}"
+            )
+        M = np.diag(M)
+    if M.shape != (size, size):
+        raise ValueError(
+            f"{name} must be {size}x{size} (or {size} diagonal entries), got shape {M.shape}"
+        )
+    if not np.all(np.isfinite(M)):
+        raise ValueError(f"{name} must be finite, got {M.tolist()}")
+    if not np.allclose(M, M.T) or np.linalg.eigvalsh((M + M.T) / 2).min() < -1e-12:
+        raise ValueError(f"{name} must be symmetric positive semidefinite, got {M.tolist()}")
+    return (M + M.T) / 2
+
+
+def _vector(name: str, value, size: int) -> np.ndarray:
+    v = np.asarray(value, dtype=np.float64)
+    if v.shape != (size,) or not np.all(np.isfinite(v)):
+        raise ValueError(
+            f"{name} must be {size} finite numbers, got {np.asarray(value).tolist()!r}"
+        )
+    return v
+
+
+def quadratic_cost(target, Q, R, a_op=None) -> QuadraticCost:
+    """A checked :class:`QuadraticCost`; ``Q``/``R`` may be full matrices, diagonals or scalars.
+
+    Raises ValueError naming ``Q``, ``R``, ``target`` or ``a_op`` when a size does not match.
+    """
+    t = np.asarray(target, dtype=np.float64)
+    if t.ndim != 1 or t.size == 0:
+        raise ValueError(f"target must be a non-empty vector, got shape {t.shape}")
+    t = _vector("target", t, t.size)
+    Rm = np.asarray(R, dtype=np.float64)
+    m = Rm.shape[0] if Rm.ndim >= 1 else (np.asarray(a_op).size if a_op is not None else 1)
+    Qm = _square("Q", Q, t.size)
+    Rm = _square("R", R, m)
+    a = np.zeros(m) if a_op is None else _vector("a_op", a_op, m)
+    return QuadraticCost(t, Qm, Rm, a)
+
+
+# ----------------------------------------------------------------------------- policies
+class LinearPolicy:
+    """Affine gains ``K [C, T, m, n]`` (C stacked policies): ``a = a_op − K[c, τ] [o − o*; 1]``.
+
+    ``K`` may also be ``[T, m, n]`` or ``[m, n]`` (one policy; time-invariant) or ``[m, n_obs]``
+    (no feedforward column). ``act(obs [k, n_obs], t [k], index [k])`` picks policy ``index``.
+    """
+
+    def __init__(self, K, target, a_op, observe=None):
+        K = np.asarray(K, dtype=np.float64)
+        self.observe = observe
+        self.target = np.asarray(target, dtype=np.float64)
+        self.a_op = np.asarray(a_op, dtype=np.float64)
+        n_obs, m = self.target.shape[0], self.a_op.shape[0]
+        if K.ndim >= 2 and K.shape[-2:] == (m, n_obs):
+            K = np.concatenate([K, np.zeros((*K.shape[:-1], 1))], axis=-1)
+        if K.ndim < 2 or K.ndim > 4 or K.shape[-2:] != (m, n_obs + 1):
+            raise ValueError(
+                f"K must be [(C,) (T,) {m}, {n_obs + 1}] or [{m}, {n_obs}], got {K.shape}"
+            )
+        while K.ndim < 4:
+            K = K[None]
+        self.K = K
+
+    def act(self, obs, t, index):
+        if self.observe is not None:
+            obs = obs[:, self.observe]
+        dx = np.concatenate([obs - self.target, np.ones((obs.shape[0], 1))], axis=1)
+        Kr = self.K[index % self.K.shape[0], np.minimum(t, self.K.shape[1] - 1)]
+        return self.a_op - np.einsum("kmn,kn->km", Kr, dx)
+
+
+class CallablePolicy:
+    """A user's policy ``fn(obs [n_obs]) -> action [m]`` applied row by row (``batched=True``:
+    ``fn(obs [k, n_obs]) -> [k, m]`` in one call)."""
+
+    def __init__(self, fn: Callable, m: int, *, batched: bool = False):
+        if not callable(fn):
+            raise TypeError(f"policy must be callable, got {fn!r}")
+        self.fn, self.m, self.batched = fn, m, batched
+
+    def act(self, obs, t, index):
+        if self.batched:
+            a = np.asarray(self.fn(obs), dtype=np.float64)
+        else:
+            a = np.stack([np.asarray(self.fn(o), dtype=np.float64).reshape(-1) for o in obs])
+        if a.shape != (obs.shape[0], self.m):
+            raise ValueError(
+                f"policy returned actions of shape {a.shape}, expected {(obs.shape[0], self.m)}"
+            )
+        return a
+
+
+class OpenLoopPolicy:
+    """A nominal action sequence ``U [T, m]``: ``a_τ = U[τ]`` (the last row after the end)."""
+
+    def __init__(self, U):
+        self.U = np.atleast_2d(np.asarray(U, dtype=np.float64))
+
+    def act(self, obs, t, index):
+        return self.U[np.minimum(t, self.U.shape[0] - 1)]
+
+
+class Slot(NamedTuple):
+    """One buffer to fill: ``policy`` (index into the policies list), ``index`` (its sub-policy,
+    e.g. the seed's gain), ``seed`` (the slot's generator seed), ``action_std`` and ``restart``."""
+
+    policy: int
+    index: int
+    seed: int
+    action_std: float = 0.0
+    restart: bool = True
+
+
+class Rollouts(NamedTuple):
+    """Recorded slots, numpy, leading axes ``[R, T]``.
+
+    ``x`` [R, T, n_raw] raw observations, ``dx``/``dx_next`` [R, T, n], ``du`` [R, T, m] applied
+    action minus ``a_op``, ``reward`` [R, T] the env's rewards, ``t`` [R, T] int32 steps since
+    reset, ``mask`` [R, T] (the step was
+    taken, finite and inside ``stop_norm``); ``steps`` [R] actions taken, ``terminated`` [R]
+    (an episode ended by ``terminated``), ``finite`` [R] (no non-finite action or observation).
+    """
+
+    x: np.ndarray
+    dx: np.ndarray
+    du: np.ndarray
+    dx_next: np.ndarray
+    t: np.ndarray
+    mask: np.ndarray
+    reward: np.ndarray
+    steps: np.ndarray
+    terminated: np.ndarray
+    finite: np.ndarray
+
+
+def slot_streams(slot: Slot, horizon: int, m: int) -> tuple[np.ndarray, np.random.Generator]:
+    """A slot's action noise ``ε [horizon, m]`` and the generator that then draws its episodes'
+    reset seeds (``integers(2**32)`` per reset), from ``default_rng(slot.seed)``."""
+    rng = np.random.default_rng(slot.seed)
+    return rng.standard_normal((horizon, m)) * slot.action_std, rng
+
+
+# ----------------------------------------------------------------------------- the system
+def make_env_fn(env, kwargs: dict | None = None) -> Callable[[], gymnasium.Env]:
+    """A factory for one sub-environment: from an id (``gymnasium.make(id, **kwargs)``), a
+    factory, or an instance (deep-copied for every sub-environment)."""
+    kwargs = dict(kwargs or {})
+    if isinstance(env, str):
+        return lambda: gymnasium.make(env, **kwargs)
+    if isinstance(env, gymnasium.Env):
+        return lambda: copy.deepcopy(env)
+    if callable(env):
+        return env
+    raise TypeError(f"env must be an id, a gymnasium.Env or a factory, got {env!r}")
+
+
+def _check_box(name: str, space) -> int:
+    if not isinstance(space, gymnasium.spaces.Box):
+        kind = type(space).__name__
+        raise ValueError(
+            f"{name} space must be a continuous Box, got {kind} ({space}); "
+            "loopid needs Box observations and actions"
+        )
+    if len(space.shape) != 1:
+        raise ValueError(f"{name} space must be a 1-D Box, got shape {space.shape}")
+    return int(space.shape[0])
+
+
+class GymSystem:
+    """A Gymnasium env as the real system (see the module docstring).
+
+    Args:
+      env: an env id (``"Pendulum-v1"``), a factory ``() -> Env`` or an Env instance.
+      target: the target observation ``o*`` [n_obs] (of the ``observe`` entries).
+      observe: indices of the observation entries the model sees (default: all).
+      a_op: the operating action [m] (default zeros).
+      horizon: steps per episode (default: the env's ``max_episode_steps``).
+      num_envs: sub-environments run at once.
+      env_kwargs: keyword arguments for ``gymnasium.make``.
+      reset_options: ``options`` passed to every reset (e.g. Pendulum's ``x_init``/``y_init``).
+      vectorization: ``"sync"`` or ``"async"``.
+      stop_norm: training slots end an episode when ``‖[Δx_{:−1}; Δu]‖₂ > stop_norm``.
+
+    Raises ValueError for an unknown id, a non-Box space, or a size that does not match.
+    """
+
+    def __init__(
+        self,
+        env,
+        *,
+        target,
+        observe=None,
+        a_op=None,
+        horizon: int | None = None,
+        num_envs: int = 8,
+        env_kwargs: dict | None = None,
+        reset_options: dict | None = None,
+        vectorization: str = "sync",
+        stop_norm: float | None = None,
+    ):
+        if isinstance(num_envs, bool) or not isinstance(num_envs, int | np.integer) or num_envs < 1:
+            raise ValueError(f"num_envs must be an integer >= 1, got {num_envs!r}")
+        if vectorization not in ("sync", "async"):
+            raise ValueError(f"vectorization must be 'sync' or 'async', got {vectorization!r}")
+        if stop_norm is not None and not stop_norm > 0:
+            raise ValueError(f"stop_norm must be > 0, got {stop_norm!r}")
+        self.env_fn = make_env_fn(env, env_kwargs)
+        try:
+            probe = self.env_fn()
+        except gymnasium.error.Error as err:
+            raise ValueError(f"cannot make env {env!r}: {str(err).splitlines()[0]}") from None
+        try:
+            self.n_raw = _check_box("observation", probe.observation_space)
+            self.m = _check_box("action", probe.action_space)
+            spec_steps = probe.spec.max_episode_steps if probe.spec is not None else None
+            self.env_id = (
+                probe.spec.id if probe.spec is not None else type(probe.unwrapped).__name__
+            )
+            self.low = np.asarray(probe.action_space.low, np.float64)
+            self.high = np.asarray(probe.action_space.high, np.float64)
+            self.action_dtype = probe.action_space.dtype
+        finally:
+            probe.close()
+        if observe is None:
+            self.observe = None
+            self.n_obs = self.n_raw
+        else:
+            idx = np.asarray(observe)
+            ok = idx.ndim == 1 and idx.size > 0 and np.issubdtype(idx.dtype, np.integer)
+            if (
+                not ok
+                or idx.min() < 0
+                or idx.max() >= self.n_raw
+                or len(set(idx.tolist())) < idx.size
+            ):
+                raise ValueError(
+                    f"observe must list distinct observation indices in [0, {self.n_raw}), "
+                    f"got {np.asarray(observe).tolist()!r}"
+                )
+            self.observe = idx.astype(np.int64)
+            self.n_obs = int(idx.size)
+        self.n = self.n_obs + 1
+        try:
+            self.target = _vector("target", target, self.n_obs)
+        except ValueError:
+            raise ValueError(
+                f"target must be {self.n_obs} finite numbers (the observed entries of "
+                f"{self.env_id}), got {np.asarray(target).tolist()!r}"
+            ) from None
+        self.a_op = np.zeros(self.m) if a_op is None else _vector("a_op", a_op, self.m)
+        if horizon is None:
+            if spec_steps is None:
+                raise ValueError(f"{self.env_id} has no max_episode_steps: give horizon")
+            horizon = spec_steps
+        if isinstance(horizon, bool) or not isinstance(horizon, int | np.integer) or horizon < 1:
+            raise ValueError(f"horizon must be an integer >= 1, got {horizon!r}")
+        self.horizon = int(horizon)
+        self.num_envs = int(num_envs)
+        self.reset_options = dict(reset_options or {})
+        self.stop_norm = stop_norm
+        vec = (
+            gymnasium.vector.SyncVectorEnv
+            if vectorization == "sync"
+            else gymnasium.vector.AsyncVectorEnv
+        )
+        self.envs = vec(
+            [self.env_fn] * self.num_envs, copy=False, autoreset_mode=AutoresetMode.DISABLED
+        )
+
+    def close(self) -> None:
+        self.envs.close()
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        self.close()
+
+    def observed(self, obs) -> np.ndarray:
+        """The entries the model sees: obs [..., n_raw] -> [..., n_obs]."""
+        obs = np.asarray(obs, np.float64)
+        return obs if self.observe is None else obs[..., self.observe]
+
+    def error(self, obs) -> np.ndarray:
+        """``Δx = [o[observe] − o*; 1]``: obs [..., n_raw] -> [..., n]."""
+        obs = self.observed(obs)
+        return np.concatenate([obs - self.target, np.ones((*obs.shape[:-1], 1))], axis=-1)
+
+    def linear_policy(self, K) -> LinearPolicy:
+        """:class:`LinearPolicy` in this system's coordinates."""
+        return LinearPolicy(K, self.target, self.a_op, self.observe)
+
+    # ------------------------------------------------------------------------- collection
+    def _reset(self, mask: np.ndarray, seeds: list) -> np.ndarray:
+        options = {**self.reset_options, "reset_mask": mask}
+        obs, _ = self.envs.reset(seed=seeds, options=options)
+        return np.array(obs, np.float64)  # a copy: the vector env reuses its buffer
+
+    def rollouts(self, policies: Sequence[Any], slots: Sequence[Slot]) -> Rollouts:
+        """Fill every slot (module docstring) through the vector env; returns :class:`Rollouts`.
+
+        ``policies``: objects with ``act(obs [k, n_raw], t [k], index [k]) -> [k, m]``.
+        """
+        R, T, E, m, n_raw = len(slots), self.horizon, self.num_envs, self.m, self.n_raw
+        x = np.zeros((R, T, n_raw))
+        x_next = np.zeros((R, T, n_raw))
+        reward = np.zeros((R, T))
+        du = np.zeros((R, T, m))
+        t_buf = np.zeros((R, T), np.int32)
+        mask = np.zeros((R, T), bool)
+        steps = np.zeros(R, np.int64)
+        terminated = np.zeros(R, bool)
+        finite = np.ones(R, bool)
+        streams = [slot_streams(s, T, m) for s in slots]
+        rngs = [g for _, g in streams]
+        eps = np.stack([e for e, _ in streams]) if R else np.zeros((0, T, m))
+        pol_of = np.array([s.policy for s in slots], np.int64)
+        idx_of = np.array([s.index for s in slots], np.int64)
+        restart_of = np.array([s.restart for s in slots], bool)
+
+        slot = np.full(E, -1)  # slot run by each sub-env (-1: idle)
+        pos = np.zeros(E, np.int64)  # next buffer row of that slot
+        tau = np.zeros(E, np.int64)  # steps since the sub-env's reset
+        queue = 0
+
+        def assign(envs_mask: np.ndarray, obs: np.ndarray | None) -> np.ndarray:
+            """Reset the sub-envs in ``envs_mask``: a new episode of their slot, the next queued
+            slot, or idle; returns the updated observations."""
+            nonlocal queue
+            seeds: list = [None] * E
+            for i in np.flatnonzero(envs_mask):
+                j = slot[i]
+                if j < 0 or pos[i] >= T or not slots[j].restart:
+                    j = queue if queue < R else -1
+                    queue += j >= 0
+                    slot[i], pos[i] = j, 0
+                tau[i] = 0
+                seeds[i] = int(rngs[j].integers(2**32)) if j >= 0 else 0
+            fresh = self._reset(envs_mask, seeds)
+            return fresh if obs is None else np.where(envs_mask[:, None], fresh, obs)
+
+        obs = assign(np.ones(E, bool), None)
+        act_dtype = self.action_dtype
+        a = np.tile(self.a_op, (E, 1))
+        single = len(policies) == 1
+        while True:
+            i = np.flatnonzero(slot >= 0)  # the sub-envs running a slot
+            if i.size == 0:
+                break
+            j, p_, tau_i = slot[i], pos[i], tau[i]
+            a[:] = self.a_op
+            groups = [(0, slice(None))] if single else [(p, pol_of[j] == p) for p in set(pol_of[j])]
+            for p, g in groups:
+                a[i[g]] = policies[p].act(obs[i[g]], tau_i[g], idx_of[j[g]]) + eps[j[g], p_[g]]
+            ok = np.isfinite(a).all(axis=1)
+            a[~ok] = self.a_op
+            applied = np.minimum(np.maximum(a, self.low), self.high).astype(act_dtype)
+            nxt, rew, term, trunc, _ = self.envs.step(applied)
+            nxt = np.array(nxt, np.float64)  # a copy: the vector env reuses its buffer
+            ok &= np.isfinite(nxt).all(axis=1)
+
+            ok_i = ok[i]
+            d = applied[i].astype(np.float64) - self.a_op
+            valid = ok_i.copy()
+            if self.stop_norm is not None:  # training slots only
+                e = self.observed(obs[i]) - self.target
+                size = np.sqrt((e * e).sum(axis=1) + (d * d).sum(axis=1))
+                valid &= (size <= self.stop_norm) | ~restart_of[j]
+            x[j, p_], x_next[j, p_], du[j, p_] = obs[i], nxt[i], d
+            t_buf[j, p_], mask[j, p_], reward[j, p_] = tau_i, valid, rew[i]
+            steps[j] += ok_i
+            terminated[j] |= term[i] & ok_i
+            finite[j] &= ok_i
+
+            pos[i] += 1
+            tau[i] += 1
+            ended = term | trunc | ~ok
+            ended[i] |= ~valid | (tau[i] >= T) | (pos[i] >= T)
+            # a slot without restart is done at its episode's end
+            done = i[ended[i] & ~restart_of[j]]
+            pos[done] = T
+            obs = nxt
+            if ended.any():
+                obs = assign(ended, obs)
+        dx = self.error(x)
+        dx_next = self.error(x_next)
+        zero = ~mask
+        for a_ in (x, dx, du, dx_next, reward):
+            a_[zero] = 0.0
+        return Rollouts(x, dx, du, dx_next, t_buf, mask, reward, steps, terminated, finite)
