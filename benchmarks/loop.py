@@ -26,8 +26,7 @@ from loopid.algorithms import methods as M
 from loopid.algorithms.expert import expert_gains
 from loopid.algorithms.loop import make_cell, run_learning
 from loopid.algorithms.model_based import linear_agent
-from loopid.algorithms.plant import helicopter_plant
-from loopid.experiments.runner import nominal_model
+from loopid.experiments.families.helicopter import helicopter_plant, nominal_model
 from loopid.experiments.scenarios import scenario
 from loopid.exploration import make_nu
 from loopid.learners import ftrl_least_squares

@@ -22,7 +22,8 @@ import jax.numpy as jnp
 import numpy as np
 
 from loopid.algorithms.policy_gradient import budget, fd_gradient
-from loopid.experiments.runner import _agent, setup
+from loopid.experiments.families.helicopter import agent as agent_of
+from loopid.experiments.families.helicopter import setup
 from loopid.experiments.scenarios import scenario
 
 N = 200  # noise draws for the exact expectations
@@ -34,7 +35,7 @@ def main() -> None:
     st = setup(s)
     plant = st.plant
     dyn = plant.dynamics
-    agent = _agent(s)
+    agent = agent_of(s)
     K1, _ = agent.policy(agent.init())
     H, P = budget(s.samples, s.pg_horizon, plant.horizon)
     target = jnp.asarray(plant.task.target)

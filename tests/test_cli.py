@@ -78,7 +78,11 @@ BAD = [
     (["run", "mdp-trap", "--methods", "dagger-t"], "'dagger-t'"),
     (["run", "mdp-trap", "--test-trajectories", "3"], "--test-trajectories"),
     (["run", "gym"], "--config"),
-    (["run", "gym", "--config", "{unknown}", "--seeds", "3"], "--seeds"),
+    (["run", "gym", "--config", "{unknown}", "--seeds", "3"], "iteratons"),
+    (["run", "hover", "--set", "colour=red"], "colour"),
+    (["run", "hover", "--set", "iterations"], "key=value"),
+    (["run", "hover", "--set", "delay_mode=delayed"], "delay_mode must be one of fifo, latency"),
+    (["run", "mdp-trap", "--set", "nu=everywhere"], "'everywhere'"),
     (["reproduce", "--bogus"], "--bogus"),
     (["reproduce", "--seeds", "0"], "seeds"),
     (["reproduce", "--executor", "spark"], "'spark'"),
@@ -246,6 +250,20 @@ def test_ray_executor_gives_the_local_table(tmp_path, cache, quick):
     local = pq.read_table(tmp_path / "local" / "results.parquet")
     assert pq.read_table(tmp_path / "ray" / "results.parquet").equals(local)
     assert (tmp_path / "ray" / "report.md").exists()
+
+
+@pytest.mark.slow
+def test_ray_executor_gives_the_local_table_for_an_mdp(tmp_path, cache):
+    pytest.importorskip("ray")
+    args = ["run", "mdp-trap", "--seeds", "2", "--iterations", "3", "--quiet"]
+    r = cli(*args, "--workers", "1", "--out", tmp_path / "local", cache=cache)
+    assert r.returncode == 0, r.stderr
+    r = cli(*args, "--executor", "ray", "--out", tmp_path / "ray", cache=cache)
+    assert r.returncode == 0, r.stderr
+    local = pq.read_table(tmp_path / "local" / "results.parquet")
+    assert local.num_rows == 3 * 2 * 3
+    assert pq.read_table(tmp_path / "ray" / "results.parquet").equals(local)
+    assert "j_best ≤ bound" in (tmp_path / "ray" / "report.md").read_text()
 
 
 @pytest.mark.slow

@@ -1,23 +1,17 @@
-"""The ``loopid`` command line (typer).
+"""loopid: closed-loop system identification and model-based control (Ross & Bagnell 2012).
 
-- ``loopid reproduce [--out DIR] [--seeds N] [--quick] [--quiet] [--executor local|ray]
-  [--ray-address ADDR] [--workers N]``: every panel of the paper's Figure 2 and every method,
-  at protocol scale (``--quick``: every panel and method at 2 seeds and 4 iterations, a smoke run).
-- ``loopid run SCENARIO [--methods a,b] [--seeds N] [--iterations N] [--samples N]
-  [--test-trajectories N] [--config FILE] [--out DIR] [--quiet] [--executor local|ray]
-  [--ray-address ADDR] [--workers N]``: one panel (or part of it). ``--config`` is a TOML
-  file of scenario fields (and ``methods``); options given on the command line win over it.
-  ``loopid run gym --config FILE``: any Gymnasium environment
-  (:mod:`loopid.experiments.gym_config`).
-- ``loopid study [--out DIR] [--seeds N] [--quick] [--reproduce RUN_DIR] [--workers N]
-  [--executor local|ray]``: every reading of SPEC §5, one factor at a time
-  (:mod:`loopid.experiments.study`).
-- ``loopid plot DIR``: remake ``figure.png`` and ``report.md`` from ``DIR/results.parquet``.
-- ``loopid --version``.
+Commands:
 
-A run directory holds ``config.toml``, ``results.parquet``, ``figure.png`` and ``report.md``
-(and ``cells/``, one file per finished cell: rerunning a command resumes it). Bad input exits
-with code 2 and one line naming the bad value; nothing is written then.
+\b
+  loopid run SCENARIO    one scenario's methods on every seed (hover, hover-delay, funnel,
+                         mdp-random, mdp-trap, mdp-trap-hinge, or gym with --config FILE)
+  loopid reproduce       the paper's Figure 2, every panel and method, and the finite-MDP study
+  loopid study           every reading of the paper's open details (SPEC 5), one at a time
+  loopid plot DIR        figure.png and report.md again from DIR/results.parquet
+
+A run directory holds config.toml, results.parquet, figure.png, report.md and cells/ (one file
+per finished cell: rerunning a command resumes it). Bad input exits with code 2 and one line
+naming the bad value; nothing is written then.
 """
 
 import sys
@@ -29,12 +23,15 @@ import typer
 import loopid
 
 app = typer.Typer(
-    add_completion=False, no_args_is_help=True, help=__doc__, pretty_exceptions_enable=False
+    add_completion=False,
+    no_args_is_help=True,
+    help=__doc__,
+    pretty_exceptions_enable=False,
+    rich_markup_mode=None,  # plain text: click wraps paragraphs, keeps blocks marked \b as they are
 )
 
-#: ``--quick``: every panel and method, 2 seeds, 4 iterations, 10 test trajectories.
+#: --quick: every panel and method, 2 seeds, 4 iterations, 10 test trajectories.
 QUICK = {"iterations": 4, "test_trajectories": 10, "seeds": 2}
-ALL_METHODS = "dagger-t,dagger-e,dagger-en,batch-t,batch-e,batch-en,abbeel,expert,pg"
 
 
 def _version(value: bool) -> None:
@@ -117,50 +114,16 @@ class _Output:
             self.bars = None
 
 
-def _methods(text: str, s=None) -> list[str]:
-    """Parse a comma-separated method list; check it against scenario ``s`` (default: the
-    helicopter's nine methods)."""
-    from loopid.algorithms.methods import check_method
-    from loopid.experiments.runner import check_methods
-
+def _methods(text: str) -> list[str]:
+    """A comma-separated method list (checked against the scenario's family by run_cells)."""
     names = [m.strip() for m in text.split(",") if m.strip()]
     if not names:
         raise ValueError("--methods is empty; give a comma-separated list")
-    if s is not None:
-        check_methods(s, names)
-    else:
-        for m in names:
-            check_method(m)
     return names
 
 
-def _write_outputs(out: Path, table, command_s: float | None = None) -> None:
-    """``figure.png`` and ``report.md`` of a run directory: the paper's Figure 2 and findings,
-    or the finite-MDP figure and report when the table holds only MDP scenarios."""
-    import numpy as np
-
-    from loopid.experiments.mdp import MDP_SCENARIOS, mdp_figure, mdp_report
-    from loopid.experiments.plots import figure
-    from loopid.experiments.report import write_report
-    from loopid.experiments.results import write_atomic_bytes
-
-    names = set(np.asarray(table.column("scenario").to_numpy(zero_copy_only=False)).tolist())
-    if names and names <= set(MDP_SCENARIOS):
-        mdp_figure(table, out / "figure.png")
-        write_atomic_bytes(mdp_report(table).encode(), out / "report.md")
-    else:
-        figure(table, out / "figure.png")
-        write_report(out, table, command_s=command_s)
-
-
-def _finish(out: Path, table, t0: float, output: _Output) -> None:
-    """Draw ``figure.png`` and write ``report.md`` from the table just written."""
-    _write_outputs(out, table, time.perf_counter() - t0)
-    output.log(f"wrote {table.num_rows} rows, figure.png and report.md to {out}/")
-
-
 def _workers(executor: str, workers: int | None) -> int:
-    """``--workers``: the local executor's worker processes (default: one per CPU, at most 4)."""
+    """--workers: the local executor's worker processes (default: one per CPU, at most 4)."""
     from loopid.experiments.executors import check_workers, default_workers
 
     if workers is None:
@@ -171,23 +134,19 @@ def _workers(executor: str, workers: int | None) -> int:
 
 
 def _execute(out, scenarios, methods, *, quiet, executor, ray_address, workers, t0) -> None:
-    from loopid.experiments.execute import run_cells
+    """Run the cells into out, then draw figure.png and write report.md."""
+    from loopid.experiments.execute import run_cells, write_outputs
 
     output = _Output(quiet)
     try:
         table = run_cells(
-            out,
-            scenarios,
-            methods,
-            executor_name=executor,
-            ray_address=ray_address,
-            workers=workers,
-            on_cell=output.on_cell,
-            log=output.log,
-        )
+            out, scenarios, methods, executor_name=executor, ray_address=ray_address,
+            workers=workers, on_cell=output.on_cell, log=output.log,
+        )  # fmt: skip
     finally:
         output.close()
-    _finish(out, table, t0, output)
+    write_outputs(out, table, time.perf_counter() - t0)
+    output.log(f"wrote {table.num_rows} rows, figure.png and report.md to {out}/")
 
 
 EXECUTOR = typer.Option("local", "--executor", help="local (this machine) or ray.")
@@ -205,25 +164,64 @@ SEEDS = typer.Option(None, "--seeds", help="Number of seeds (default 20; --quick
 
 
 def _protocol_changes(quick: bool, seeds: int | None) -> dict:
-    """The scenario fields ``--quick`` and ``--seeds`` change on the paper's panels."""
+    """The scenario fields --quick and --seeds change on the paper's panels."""
     changes = dict(QUICK) if quick else {}
     if seeds is not None:
         changes["seeds"] = seeds
     return changes
 
 
+def scenario_from_options(name: str, config: Path | None, options: dict, assignments: list[str]):
+    """The scenario ``loopid run NAME`` runs, and its methods (None: the family's default).
+
+    Fields come from the family's named scenario, then the --config file, then --set
+    FIELD=VALUE, then the common options (--seeds, --iterations, ...): later ones win. An
+    option whose field the family does not have is refused with one line."""
+    from loopid.experiments.config import parse_assignment
+    from loopid.experiments.families import family_named
+
+    family = family_named(name)
+    fields, methods = family.read_file(config) if config is not None else ({}, None)
+    allowed = family.field_names()
+    for text in assignments:
+        key, value = parse_assignment(text)
+        if key not in allowed:
+            raise ValueError(
+                f"--set {key}: {name} has no field {key!r}; fields: {', '.join(allowed)}"
+            )
+        fields[key] = value
+    for key, value in options.items():
+        if key not in allowed:
+            flag = "--" + key.replace("_", "-")
+            raise ValueError(f"{flag} does not apply to {name} (a {family.name} scenario)")
+        fields[key] = value
+    return family, family.build(name, fields), methods
+
+
 @app.command()
 def run(
-    scenario: str = typer.Argument(..., help="hover, hover-delay, funnel, or gym (--config)."),
+    scenario: str = typer.Argument(
+        ..., help="hover, hover-delay, funnel, mdp-random, mdp-trap, mdp-trap-hinge, or gym."
+    ),
     methods: str = typer.Option(
-        None, "--methods", help=f"Comma-separated methods (default: all, {ALL_METHODS})."
+        None, "--methods", help="Comma-separated methods (default: the scenario's own)."
     ),
     seeds: int = typer.Option(None, "--seeds", help="Number of seeds (default: the scenario's)."),
-    iterations: int = typer.Option(None, "--iterations", help="Iterations N (default: SPEC's)."),
+    iterations: int = typer.Option(None, "--iterations", help="Iterations N."),
     samples: int = typer.Option(None, "--samples", help="Samples per iteration m."),
-    test_trajectories: int = typer.Option(None, "--test-trajectories", help="Per evaluation."),
+    test_trajectories: int = typer.Option(
+        None, "--test-trajectories", help="Test trajectories per evaluation."
+    ),
     config: Path = typer.Option(
-        None, "--config", help="TOML file of scenario fields (and methods) to override."
+        None,
+        "--config",
+        help="TOML file of scenario fields (and methods); gym needs one "
+        "(examples/pendulum.toml). Options on the command line win over it.",
+    ),
+    assignments: list[str] = typer.Option(
+        [],
+        "--set",
+        help="FIELD=VALUE: set any scenario field (repeatable), e.g. --set delay_mode=latency.",
     ),
     out: Path = typer.Option(None, "--out", help="Run directory (default: runs/SCENARIO)."),
     quiet: bool = QUIET,
@@ -231,68 +229,31 @@ def run(
     ray_address: str = RAY_ADDRESS,
     workers: int = WORKERS,
 ) -> None:
-    """Run one scenario's methods on every seed into a run directory."""
+    """Run one scenario's methods on every seed into a run directory.
+
+    Every scenario takes the same options. Its fields come from its defaults, then --config
+    FILE, then --set FIELD=VALUE, then --seeds, --iterations, --samples and --test-trajectories
+    (later ones win).
+    """
+    from loopid.experiments.executors import check_executor
+
     t0 = time.perf_counter()
     out = Path("runs") / scenario if out is None else out
     options = dict(
         seeds=seeds, iterations=iterations, samples=samples, test_trajectories=test_trajectories
     )
     options = {k: v for k, v in options.items() if v is not None}
-    if scenario == "gym":
-        given = [f"--{k.replace('_', '-')}" for k in options] + (["--methods"] if methods else [])
-        given += ["--executor"] if executor != "local" or ray_address else []
-        given += ["--workers"] if workers is not None else []
-        if given:
-            raise ValueError(
-                f"loopid run gym takes its settings from --config; remove {', '.join(given)}"
-            )
-        if config is None:
-            raise ValueError("loopid run gym needs --config FILE (see examples/pendulum.toml)")
-        _run_gym(config, out, quiet)
-        return
-
-    from loopid.experiments.executors import check_executor
-    from loopid.experiments.mdp import MDP_SCENARIOS
-    from loopid.experiments.runner import scenario_methods
-    from loopid.experiments.scenarios import read_config
-    from loopid.experiments.scenarios import scenario as make_scenario
-
     check_executor(executor, ray_address)
     workers = _workers(executor, workers)
-    fields = read_config(config) if config is not None else {}
-    chosen = fields.pop("methods", None)
-    if scenario in MDP_SCENARIOS:
-        if "test_trajectories" in options:
-            raise ValueError("--test-trajectories does not apply to MDP scenarios (J is exact)")
-        s = MDP_SCENARIOS[scenario].replace(**(fields | options))
-    else:
-        s = make_scenario(scenario, **(fields | options))
+    family, s, chosen = scenario_from_options(scenario, config, options, assignments)
     if methods is not None:
-        chosen = _methods(methods, s)
-    elif chosen is not None:
-        chosen = _methods(",".join(chosen), s)
-    else:
-        chosen = list(scenario_methods(s))
+        chosen = _methods(methods)
+    elif chosen is None:
+        chosen = list(family.default_methods(s))
     _execute(
-        out,
-        [s],
-        chosen,
-        quiet=quiet,
-        executor=executor,
-        ray_address=ray_address,
-        workers=workers,
-        t0=t0,
-    )
-
-
-def _run_gym(config: Path, out: Path, quiet: bool) -> None:
-    try:
-        from loopid.experiments.gym_config import run_gym_config
-    except ImportError:
-        raise ValueError("the gym scenario needs loopid.experiments.gym_config") from None
-    output = _Output(quiet)
-    table = run_gym_config(config, out, quiet=quiet, log=output.log)
-    output.log(f"wrote {table.num_rows} rows to {out}/")
+        out, [s], chosen, quiet=quiet, executor=executor, ray_address=ray_address,
+        workers=workers, t0=t0,
+    )  # fmt: skip
 
 
 @app.command()
@@ -307,8 +268,11 @@ def reproduce(
     ray_address: str = RAY_ADDRESS,
     workers: int = WORKERS,
 ) -> None:
-    """The paper's Figure 2: hover, hover with delay 1 and the nose-in funnel, every method."""
+    """The paper's Figure 2 (hover, hover with delay 1, the nose-in funnel; every method) in
+    OUT, and the finite-MDP study in OUT/mdp."""
+    from loopid.algorithms.methods import METHODS
     from loopid.experiments.executors import check_executor
+    from loopid.experiments.families import mdp
     from loopid.experiments.scenarios import SCENARIOS
 
     t0 = time.perf_counter()
@@ -317,30 +281,16 @@ def reproduce(
     changes = _protocol_changes(quick, seeds)
     scenarios = [s.replace(**changes) for s in SCENARIOS.values()]
     _execute(
-        out,
-        scenarios,
-        _methods(ALL_METHODS),
-        quiet=quiet,
-        executor=executor,
-        ray_address=ray_address,
-        workers=workers,
-        t0=t0,
-    )
+        out, scenarios, list(METHODS), quiet=quiet, executor=executor, ray_address=ray_address,
+        workers=workers, t0=t0,
+    )  # fmt: skip
     # the extra figure: the finite-MDP study, where the paper's bounds are exact
-    from loopid.experiments.mdp import MDP_METHODS, MDP_SCENARIOS
-
     mdp_changes = {k: v for k, v in changes.items() if k in ("iterations", "seeds")}
-    mdp = [MDP_SCENARIOS[name].replace(**mdp_changes) for name in ("mdp-random", "mdp-trap")]
+    scenarios = [mdp.MDP_SCENARIOS[n].replace(**mdp_changes) for n in ("mdp-random", "mdp-trap")]
     _execute(
-        out / "mdp",
-        mdp,
-        list(MDP_METHODS),
-        quiet=quiet,
-        executor=executor,
-        ray_address=ray_address,
-        workers=workers,
-        t0=t0,
-    )
+        out / "mdp", scenarios, list(mdp.MDP_METHODS), quiet=quiet, executor=executor,
+        ray_address=ray_address, workers=workers, t0=t0,
+    )  # fmt: skip
 
 
 @app.command()
@@ -409,9 +359,10 @@ def plot(
     run_dir: Path = typer.Argument(..., help="A run directory holding results.parquet."),
 ) -> None:
     """Remake DIR/figure.png and DIR/report.md from DIR/results.parquet (nothing is rerun)."""
+    from loopid.experiments.execute import write_outputs
     from loopid.experiments.plots import load_results
 
-    _write_outputs(run_dir, load_results(run_dir))
+    write_outputs(run_dir, load_results(run_dir))
     typer.echo(f"wrote {run_dir / 'figure.png'} and {run_dir / 'report.md'}", err=True)
 
 

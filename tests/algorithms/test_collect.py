@@ -14,7 +14,7 @@ from scipy import stats
 
 from loopid.algorithms.collect import geometric_steps, policy_samples
 from loopid.algorithms.plant import make_plant
-from loopid.experiments.runner import setup
+from loopid.experiments.families.helicopter import setup
 from loopid.experiments.scenarios import scenario
 from loopid.systems.linear import linear_dynamics, linear_task
 

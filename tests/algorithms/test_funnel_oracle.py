@@ -14,7 +14,7 @@ import pytest
 from loopid.algorithms import loop
 from loopid.algorithms.expert import expert_gains
 from loopid.algorithms.model_based import finite_horizon_gains
-from loopid.algorithms.plant import helicopter_plant
+from loopid.experiments.families.helicopter import helicopter_plant
 from loopid.systems import helicopter as h
 from loopid.systems.tasks import make_task
 

@@ -11,7 +11,7 @@ from loopid.algorithms import methods as M
 from loopid.algorithms.collect import policy_samples
 from loopid.algorithms.loop import make_cell, run_fixed_policy, run_learning, seed_keys
 from loopid.algorithms.plant import draw, make_plant
-from loopid.experiments.runner import run
+from loopid.experiments.families.helicopter import run
 from loopid.experiments.scenarios import scenario
 from loopid.exploration import make_nu, nu_expert, nu_trajectory
 from loopid.systems.linear import linear_dynamics, linear_task

@@ -13,8 +13,9 @@ import numpy as np
 import pytest
 
 from loopid.algorithms.loop import eval_noise, seed_keys
+from loopid.experiments.families.helicopter import agent as agent_of
+from loopid.experiments.families.helicopter import run, setup
 from loopid.experiments.results import trace_table
-from loopid.experiments.runner import _agent, run, setup
 from loopid.experiments.scenarios import scenario
 
 pytestmark = pytest.mark.slow
@@ -95,7 +96,7 @@ def test_expert_and_learners_share_the_test_noise(traces):
     """The expert's and π_1's reported costs are their costs on the loop's test noise of each
     seed (an independent evaluation, trajectory by trajectory, not through the runner)."""
     st = setup(SCENARIO)
-    agent = _agent(SCENARIO)
+    agent = agent_of(SCENARIO)
     K1, _ = jax.jit(agent.policy)(agent.init())
     n_test = SCENARIO.test_trajectories
     columns = eval_noise(st.plant, seed_keys(np.arange(SCENARIO.seeds)), n_test, "last").test

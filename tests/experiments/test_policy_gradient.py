@@ -21,8 +21,9 @@ from loopid.algorithms.policy_gradient import (
     make_pg_step,
     pg_base,
 )
+from loopid.experiments.families.helicopter import agent as agent_of
+from loopid.experiments.families.helicopter import run, setup
 from loopid.experiments.results import trace_table
-from loopid.experiments.runner import _agent, run, setup
 from loopid.experiments.scenarios import scenario
 
 SCENARIO = scenario("hover", iterations=20, samples=500, seeds=4, test_trajectories=50)
@@ -81,7 +82,7 @@ def test_trim_holding_base_flies_pi1s_test_trajectories():
     while its gains differ (it holds the trim instead of cancelling the last change)."""
     s = scenario("hover", seeds=1, test_trajectories=3)
     st = setup(s)
-    agent = _agent(s)
+    agent = agent_of(s)
     K1, _ = agent.policy(agent.init())
     base, free = pg_base(st.plant, K1, hold=True)
     assert not np.allclose(base, K1)
@@ -101,7 +102,7 @@ def test_conservative_step_never_accepts_a_worse_estimate():
     every rollout enters the memory (P probes and the candidate per iteration)."""
     s = SCENARIO
     st = setup(s)
-    agent = _agent(s)
+    agent = agent_of(s)
     K1, _ = agent.policy(agent.init())
     base, free = pg_base(st.plant, K1, hold=True)
     one = make_pg_step(

@@ -6,10 +6,11 @@ import pyarrow as pa
 import pyarrow.parquet as pq
 import pytest
 
-from loopid.experiments import plots, report
+from loopid.experiments import findings, plots, report
 from loopid.experiments.results import SCHEMA, read_table
 
 PANELS = ("hover", "hover-delay", "funnel")
+HOVER = {"hover", "hover-delay"}
 
 
 def table_of(costs: dict[tuple[str, str], np.ndarray], samples: int = 100) -> pa.Table:
@@ -56,11 +57,11 @@ def paper_like() -> dict:
 
 
 def verdicts(costs) -> list[str]:
-    return [f.verdict for f in report.findings(table_of(costs))]
+    return [f.verdict for f in findings.findings(table_of(costs), HOVER)]
 
 
 def test_every_finding_holds_on_a_paper_like_table():
-    found = report.findings(table_of(paper_like()))
+    found = findings.findings(table_of(paper_like()), HOVER)
     assert [f.number for f in found] == [1, 2, 3, 4, 5]
     assert [f.verdict for f in found] == ["holds"] * 5
     assert [f.mean_verdict for f in found] == ["holds"] * 5
@@ -97,7 +98,7 @@ def test_medians_and_means_judged_separately():
     d[0, -1] = 1e8  # one seed diverges (capped)
     costs[("hover", "dagger-t")] = d
     costs[("hover", "batch-t")] = curve(2.6e6, 1e6)
-    f1 = report.findings(table_of(costs))[0]
+    f1 = findings.findings(table_of(costs), HOVER)[0]
     assert (f1.verdict, f1.mean_verdict) == ("holds", "does not hold")
     assert any("hover ν_t" in line and "on means" in line for line in f1.details)
 
@@ -140,6 +141,8 @@ def test_plot_and_report_from_a_saved_table_alone(tmp_path, monkeypatch, capsys)
 
 
 def test_final_cost_table_in_the_report():
-    text = report.report_text(table_of(paper_like()), config_text="[run]\nseeds = [0]\n")
+    table = table_of(paper_like())
+    sections = report.final_cost_sections(table)
+    text = report.report_text(table, sections, config_text="[run]\nseeds = [0]\n")
     assert "### hover-delay" in text and "| batch-t | " in text
     assert "```toml\n[run]\nseeds = [0]\n```" in text

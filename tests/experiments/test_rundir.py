@@ -1,6 +1,7 @@
 """Run directories (issue 5 "Must show" 7): resume skips finished cells, same table, foreign
 configurations refused."""
 
+import dataclasses
 import shutil
 
 import numpy as np
@@ -19,15 +20,20 @@ METHODS = ["expert"]
 
 @pytest.fixture
 def counted(monkeypatch):
-    """Count the cells actually computed (run_cells calls runner.run once per cell)."""
+    """Count the cells actually computed (run_cells calls the family's run once per cell)."""
     calls = []
-    real = execute.run
+    real = execute.family_of
 
-    def counting(method, s, seeds=None, **kw):
-        calls.append((s.name, method))
-        return real(method, s, seeds, **kw)
+    def family_of(s):
+        family = real(s)
 
-    monkeypatch.setattr(execute, "run", counting)
+        def counting(method, s, seeds=None, **kw):
+            calls.append((s.name, method))
+            return family.run(method, s, seeds, **kw)
+
+        return dataclasses.replace(family, run=counting)
+
+    monkeypatch.setattr(execute, "family_of", family_of)
     return calls
 
 

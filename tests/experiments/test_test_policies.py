@@ -4,7 +4,7 @@ training, the same test noise), ``mixture`` at iteration 1 is π_1."""
 import numpy as np
 import pytest
 
-from loopid.experiments.runner import run
+from loopid.experiments.families.helicopter import run
 from loopid.experiments.scenarios import scenario
 
 BASE = dict(iterations=4, seeds=2, test_trajectories=5)

@@ -20,7 +20,7 @@ from loopid.algorithms.mdp_agent import (
 )
 from loopid.algorithms.methods import policy_fractions
 from loopid.control.value_iteration import occupancy
-from loopid.experiments.mdp import MDP_SCENARIOS, mdp_figure, mdp_setup, run_mdp
+from loopid.experiments.families.mdp import MDP_SCENARIOS, mdp_figure, mdp_setup, run_mdp
 from loopid.experiments.results import trace_table
 from loopid.learners.base import Learner
 

@@ -13,8 +13,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from loopid.algorithms.plant import helicopter_plant
-from loopid.experiments.runner import nominal_model, setup
+from loopid.experiments.families.helicopter import helicopter_plant, nominal_model, setup
 from loopid.experiments.scenarios import scenario
 from loopid.models.linear_offset import time_varying_nominal
 from loopid.systems import helicopter as h

@@ -16,8 +16,9 @@ run and shared by every method through ``cell``).
 Randomness: slot seeds are ``SeedSequence([seed, n, stream]).generate_state(k, uint32)`` with
 streams 1 (policy), 2 (ν) and 3 (test, with n = 0: the same test episodes at every iteration and
 for every method at that seed, i.e. common random numbers); each slot seeds its env resets and
-action noise (:mod:`loopid.systems.from_gymnasium`). The draws and the policy/ν choice use JAX keys
-``fold_in(fold_in(key(seed), 1), n)`` as the JAX loop does.
+action noise (:mod:`loopid.systems.from_gymnasium`). The draws and the policy/ν choice use the JAX loop's
+keys (:func:`loopid.algorithms.loop.iteration_keys`), and the learning step is the JAX loop's
+(:func:`loopid.algorithms.loop.learning_step`).
 
 Test cost of one episode: ``Σ_t c(o_t, a_t)`` over the actions taken (plus ``termination_cost``
 if it ended by ``terminated``), capped at ``cost_cap``; an episode that reaches the cap or a
@@ -34,14 +35,22 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from loopid.algorithms.loop import Agent, Row, Trace, _trace, batch_losses, seed_keys
+from loopid.algorithms.loop import (
+    Agent,
+    Row,
+    Trace,
+    _trace,
+    drive,
+    iteration_keys,
+    learning_step,
+    seed_keys,
+)
 from loopid.algorithms.model_based import linear_agent
-from loopid.algorithms.plant import Transitions, draw, select
+from loopid.algorithms.plant import Transitions, draw
 from loopid.learners import ftrl_least_squares
 from loopid.models.linear_offset import LinearOffsetModel
 from loopid.systems.from_gymnasium import GymSystem, QuadraticCost, Rollouts, Slot
 
-_TRAIN = 1
 _POLICY, _NU, _TEST = 1, 2, 3
 
 
@@ -124,19 +133,13 @@ def make_host_cell(agent: Agent, *, samples: int, with_nu: bool = True) -> HostC
         return jax.vmap(first)(dummy)
 
     def one(carry: _Carry, pol: Transitions, nu: Transitions, key, n, p):
-        k_pol, k_nu, k_mix = jax.random.split(
-            jax.random.fold_in(jax.random.fold_in(key, _TRAIN), n), 3
+        keys = iteration_keys(key, n)
+        from_pol = draw(pol, keys.policy, samples)
+        from_nu = draw(nu, keys.nu, samples) if with_nu else from_pol
+        learner, loss_sum, stats = learning_step(
+            agent, carry.learner, carry.loss_sum, from_pol, from_nu, keys.mix, n, p, samples
         )
-        from_pol = draw(pol, k_pol, samples)
-        from_nu = draw(nu, k_nu, samples) if with_nu else from_pol
-        take = jax.random.bernoulli(k_mix, p, (samples,))
-        batch = select(take, from_pol, from_nu)
-        loss_nu, loss_pol, loss_batch = batch_losses(agent, carry.learner, from_pol, from_nu, take)
-        loss_sum = carry.loss_sum + loss_batch
-        learner = agent.update(carry.learner, batch)
         K, info = agent.policy(learner)
-        online = loss_sum / (n - 1).astype(loss_sum.dtype)
-        stats = (loss_nu, loss_pol, online, jnp.sum(take & batch.mask), jnp.sum(batch.mask))
         return _Carry(learner, loss_sum), K, info, stats
 
     learn = jax.jit(jax.vmap(one, in_axes=(0, 0, 0, 0, None, None)))
@@ -227,12 +230,13 @@ def run_learning_host(
         costs, div = costs.reshape(S, n_test), div.reshape(S, n_test)
         return costs.mean(1), np.median(costs, axis=1), div.sum(1)
 
-    carry, K, info = cell.start(jnp.zeros(S))
-    zero, count = np.zeros(S), np.zeros(S, np.int64)
-    rows = [_row(*test(K), zero, zero, zero, count, count, info)]
-    if progress:
-        progress(1, rows[0])
-    for n in range(2, N + 1):
+    def start():
+        carry, K, info = cell.start(jnp.zeros(S))
+        zero, count = np.zeros(S), np.zeros(S, np.int64)
+        return (carry, K), _row(*test(K), zero, zero, zero, count, count, info)
+
+    def step(state, n):
+        carry, K = state
         policies = [system.linear_policy(np.asarray(K))]
         slots = [
             Slot(0, s, x, 0.0, True)
@@ -253,10 +257,9 @@ def run_learning_host(
         carry, K, info, stats = cell.learn(
             carry, pol, from_nu, keys, jnp.int32(n), jnp.float64(fractions[n - 1])
         )
-        rows.append(_row(*test(K), *(np.asarray(a) for a in stats), info))
-        if progress:
-            progress(n, rows[-1])
-    return _trace(seeds, samples, rows)
+        return (carry, K), _row(*test(K), *(np.asarray(a) for a in stats), info)
+
+    return _trace(seeds, samples, drive(start, step, N, progress))
 
 
 def _row(mean, median, div, loss_nu, loss_pol, online, pol_n, valid_n, info) -> Row:

@@ -18,7 +18,7 @@ once; :func:`run_learning` calls it N − 1 times from Python (no retracing: the
 ``p_n`` are traced arguments), which gives progress and early results per iteration.
 
 Randomness: seed ``s`` has key ``k = jax.random.key(s)``; training draws at iteration n use
-``fold_in(fold_in(k, 1), n)``. The test trajectories' process noise is drawn once per seed from
+``fold_in(fold_in(k, 1), n)`` (:func:`iteration_keys`, shared by every loop). The test trajectories' process noise is drawn once per seed from
 ``fold_in(k, 2)`` and reused at every iteration, so every method sees the same test noise at the
 same seed and iteration (common random numbers), and a curve's changes from one iteration to the
 next come from the policy alone. (Drawing it afresh each iteration would cost more than the
@@ -36,7 +36,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from loopid.algorithms.collect import policy_samples
-from loopid.algorithms.plant import Plant, Transitions, noise_columns, select
+from loopid.algorithms.plant import LoopPlant, Transitions, noise_columns, select
 
 TEST_POLICIES = ("last", "best", "mixture")
 _TRAIN, _TEST, _SELECT = 1, 2, 3
@@ -167,31 +167,99 @@ class EvalNoise(NamedTuple):
     select: jax.Array
 
 
-_NOISE_PROGRAMS: dict = {}
+def noise_program(plant: LoopPlant, n_test: int, test_policy: str) -> Callable[..., EvalNoise]:
+    """The jitted ``keys [S] -> EvalNoise``: every seed's test noise from ``fold_in(k, 2)`` and,
+    for ``best``, its selection noise from ``fold_in(k, 3)``, ``[horizon, n_noise, S, n_test]``.
+
+    Build it once per plant and shape and keep it (a family's setup does), so that every method
+    of a run shares one compilation."""
+
+    def one(key):
+        test = plant.eval_noise(jax.random.fold_in(key, _TEST), n_test)
+        if test_policy != "best":
+            return EvalNoise(test, jnp.zeros((0,), test.dtype))
+        return EvalNoise(test, plant.eval_noise(jax.random.fold_in(key, _SELECT), n_test))
+
+    def columns(keys):
+        return jax.tree_util.tree_map(noise_columns, jax.vmap(one)(keys))
+
+    return jax.jit(columns)
 
 
-def eval_noise(plant: Plant, keys: jax.Array, n_test: int, test_policy: str) -> EvalNoise:
-    """The test (and selection) noise of every seed, ``[horizon, n_noise, S, n_test]``.
-
-    One compiled program per plant and shape, reused by every method of a run."""
-    cache_key = (id(plant), n_test, test_policy == "best")
-    cached = _NOISE_PROGRAMS.get(cache_key)
-    if cached is None or cached[0] is not plant:
-
-        def one(key):
-            test = plant.eval_noise(jax.random.fold_in(key, _TEST), n_test)
-            if test_policy != "best":
-                return EvalNoise(test, jnp.zeros((0,), test.dtype))
-            return EvalNoise(test, plant.eval_noise(jax.random.fold_in(key, _SELECT), n_test))
-
-        def columns(keys):
-            return jax.tree_util.tree_map(noise_columns, jax.vmap(one)(keys))
-
-        cached = _NOISE_PROGRAMS[cache_key] = (plant, jax.jit(columns))
-    return cached[1](keys)
+def eval_noise(plant: LoopPlant, keys: jax.Array, n_test: int, test_policy: str) -> EvalNoise:
+    """The test (and selection) noise of every seed (:func:`noise_program`, compiled afresh)."""
+    return noise_program(plant, n_test, test_policy)(keys)
 
 
-def _evaluate(plant: Plant, carry: _Carry, K, keys, noise: EvalNoise, n, test_policy: str):
+def iteration_key(key: jax.Array, n) -> jax.Array:
+    """The key of iteration ``n``'s training draws of one seed: ``fold_in(fold_in(k, 1), n)``."""
+    return jax.random.fold_in(jax.random.fold_in(key, _TRAIN), n)
+
+
+class IterationKeys(NamedTuple):
+    """Iteration n's three training keys of one seed: the policy's draws, ν's draws, the mix."""
+
+    policy: jax.Array
+    nu: jax.Array
+    mix: jax.Array
+
+
+def iteration_keys(key: jax.Array, n) -> IterationKeys:
+    """:func:`iteration_key` split three ways (every loop's one key schedule)."""
+    return IterationKeys(*jax.random.split(iteration_key(key, n), 3))
+
+
+class LearnStats(NamedTuple):
+    """One learning step's diagnostics (the :class:`Row` fields of the same names)."""
+
+    loss_nu: jax.Array
+    loss_policy: jax.Array
+    online_loss: jax.Array
+    policy_samples: jax.Array
+    valid_samples: jax.Array
+
+
+def learning_step(agent: Agent, learner, loss_sum, from_pol, from_nu, k_mix, n, p, samples: int):
+    """Algorithm 1's learning half for one seed, the same for the JAX loop and the host loop.
+
+    Slot i of the batch is row i of the policy's draws ``from_pol`` with probability ``p``
+    (``bernoulli(k_mix, p, [samples])``), else row i of ν's draws ``from_nu``; the model's mean
+    loss on each set and on the batch is taken *before* the update; the learner is updated on
+    the batch; the online loss is the running mean of the batch losses over iterations 2..n
+    (``loss_sum`` carries their sum). Returns ``(learner, loss_sum, LearnStats)``.
+    """
+    take = jax.random.bernoulli(k_mix, p, (samples,))
+    batch = select(take, from_pol, from_nu)
+    loss_nu, loss_pol, loss_batch = batch_losses(agent, learner, from_pol, from_nu, take)
+    loss_sum = loss_sum + loss_batch
+    learner = agent.update(learner, batch)
+    online = loss_sum / (n - 1).astype(loss_sum.dtype)
+    counts = (jnp.sum(take & batch.mask), jnp.sum(batch.mask))
+    return learner, loss_sum, LearnStats(loss_nu, loss_pol, online, *counts)
+
+
+def drive(
+    start: Callable[[], tuple[Any, Row]],
+    step: Callable[[Any, int], tuple[Any, Row]],
+    iterations: int,
+    progress: Callable[[int, Row], None] | None = None,
+) -> list[Row]:
+    """The Python loop over iterations that every runner shares: ``start() -> (carry, row)`` is
+    iteration 1, ``step(carry, n) -> (carry, row)`` iteration n = 2..N; ``progress(n, row)``
+    after each. Returns the N rows."""
+    carry, row = start()
+    rows = [row]
+    if progress:
+        progress(1, row)
+    for n in range(2, iterations + 1):
+        carry, row = step(carry, n)
+        rows.append(row)
+        if progress:
+            progress(n, row)
+    return rows
+
+
+def _evaluate(plant: LoopPlant, carry: _Carry, K, keys, noise: EvalNoise, n, test_policy: str):
     """Test every seed's policy ``K [S, horizon, m, n]``; returns (costs [S, n_test], diverged
     [S, n_test], new carry)."""
     carry = carry._replace(K=K)
@@ -216,7 +284,7 @@ def _evaluate(plant: Plant, carry: _Carry, K, keys, noise: EvalNoise, n, test_po
 
 
 def make_cell(
-    plant: Plant,
+    plant: LoopPlant,
     agent: Agent,
     nu: Callable[[jax.Array, int], Transitions] | Sequence[Callable] | None,
     *,
@@ -290,20 +358,13 @@ def make_cell(
         return jax.lax.switch(which, [lambda k, f=f: f(k, samples) for f in nus], key)
 
     def learn(carry: _Carry, key, n, p, which):
-        k_pol, k_nu, k_mix = jax.random.split(
-            jax.random.fold_in(jax.random.fold_in(key, _TRAIN), n), 3
+        keys = iteration_keys(key, n)
+        from_pol = policy_samples(plant, carry.K, keys.policy, samples, mode=mode, gamma=gamma)
+        from_nu = draw_nu(which, keys.nu, from_pol)
+        learner, loss_sum, stats = learning_step(
+            agent, carry.learner, carry.loss_sum, from_pol, from_nu, keys.mix, n, p, samples
         )
-        from_pol = policy_samples(plant, carry.K, k_pol, samples, mode=mode, gamma=gamma)
-        from_nu = draw_nu(which, k_nu, from_pol)
-        take = jax.random.bernoulli(k_mix, p, (samples,))
-        batch = select(take, from_pol, from_nu)
-
-        loss_nu, loss_pol, loss_batch = batch_losses(agent, carry.learner, from_pol, from_nu, take)
-        loss_sum = carry.loss_sum + loss_batch
-        carry = carry._replace(learner=agent.update(carry.learner, batch), loss_sum=loss_sum)
-        online = loss_sum / (n - 1).astype(loss_sum.dtype)
-        counts = (jnp.sum(take & batch.mask), jnp.sum(batch.mask))
-        return carry, (loss_nu, loss_pol, online, *counts)
+        return carry._replace(learner=learner, loss_sum=loss_sum), stats
 
     def skip(carry: _Carry, key, n, p, which):
         stats = jax.eval_shape(learn, carry, key, n, p, which)[1]
@@ -321,7 +382,10 @@ def make_cell(
         in_axes = (0, 0, None, None, None)
         carry, stats = jax.vmap(learn_after_first, in_axes=in_axes)(carry, keys, n, p, which)
         carry, (mean, median, div, info, extra) = solve_and_test(carry, keys, noise, n, p)
-        return carry, Row(mean, median, div, *stats, *info, extra)
+        return carry, Row(
+            test_cost=mean, test_cost_median=median, diverged=div, **stats._asdict(),
+            solver_converged=info.converged, spectral_radius=info.spectral_radius, extra=extra,
+        )  # fmt: skip
 
     def start(keys, noise):
         """Iteration 1: the initial model solved and tested (the same compiled ``step``)."""
@@ -331,7 +395,7 @@ def make_cell(
 
 
 def run_learning(
-    plant: Plant,
+    plant: LoopPlant,
     agent: Agent,
     nu,
     fractions,
@@ -345,6 +409,7 @@ def run_learning(
     progress: Callable[[int, Row], None] | None = None,
     cell=None,
     which: int = 0,
+    noise: EvalNoise | None = None,
 ) -> Trace:
     """Run one learning method for ``len(fractions)`` iterations on every seed.
 
@@ -353,7 +418,9 @@ def run_learning(
     called after each iteration with that iteration's :class:`Row` (leaves ``[S]``). ``cell``:
     a ``(start, step)`` pair from :func:`make_cell` with the same arguments, to reuse its
     compilation across methods (DAgger, Batch, Abbeel); ``which`` picks the ν of a list.
+    ``noise``: the seeds' :class:`EvalNoise` when the caller keeps a :func:`noise_program`.
     """
+    which = jnp.int32(which)
     fractions = np.asarray(fractions, dtype=np.float64)
     iterations = int(fractions.shape[0])
     if iterations < 1:
@@ -367,22 +434,18 @@ def run_learning(
             gamma=gamma, test_policy=test_policy,
         )  # fmt: skip
     start, step = cell
-    noise = eval_noise(plant, keys, n_test, test_policy)
-    carry, row = start(keys, noise)
-    rows = [row]
-    if progress:
-        progress(1, row)
-    for n in range(2, iterations + 1):
-        p = jnp.float64(fractions[n - 1])
-        carry, row = step(carry, keys, noise, jnp.int32(n), p, jnp.int32(which))
-        rows.append(row)
-        if progress:
-            progress(n, row)
+    if noise is None:
+        noise = eval_noise(plant, keys, n_test, test_policy)
+
+    def one(carry, n):
+        return step(carry, keys, noise, jnp.int32(n), jnp.float64(fractions[n - 1]), which)
+
+    rows = drive(lambda: start(keys, noise), one, iterations, progress)
     return _trace(seeds, samples, rows)
 
 
 def run_fixed_policy(
-    plant: Plant,
+    plant: LoopPlant,
     K: jax.Array,
     seeds,
     *,
@@ -390,14 +453,16 @@ def run_fixed_policy(
     samples: int,
     n_test: int,
     progress: Callable[[int, Row], None] | None = None,
+    noise: jax.Array | None = None,
 ) -> Trace:
-    """Test one fixed policy (the linearised expert L) on the learning methods' test noise.
+    """Test one fixed policy (the linearised expert L) on the learning methods' test noise
+    (``noise``: the seeds' ``EvalNoise.test`` when the caller keeps a :func:`noise_program`).
 
     The policy and the noise are the same at every iteration, so the test runs once and its row
     is repeated (a flat line); the diagnostics are 0 and the solver status True.
     """
-    keys = seed_keys(seeds)
-    noise = eval_noise(plant, keys, n_test, "last")
+    if noise is None:
+        noise = eval_noise(plant, seed_keys(seeds), n_test, "last").test
 
     @jax.jit
     def test(w):
@@ -405,15 +470,15 @@ def run_fixed_policy(
         costs, div = plant.eval_seeds(jnp.broadcast_to(K, (S, *K.shape)), w)
         zero, count = jnp.zeros(S), jnp.zeros(S, jnp.int32)
         return Row(
-            jnp.mean(costs, axis=1), jnp.median(costs, axis=1), jnp.sum(div, axis=1), zero, zero,
-            zero, count, count, jnp.ones(S, bool), zero, {},
+            test_cost=jnp.mean(costs, axis=1), test_cost_median=jnp.median(costs, axis=1),
+            diverged=jnp.sum(div, axis=1), loss_nu=zero, loss_policy=zero, online_loss=zero,
+            policy_samples=count, valid_samples=count, solver_converged=jnp.ones(S, bool),
+            spectral_radius=zero, extra={},
         )  # fmt: skip
 
-    row = test(noise.test)
-    for n in range(1, iterations + 1):
-        if progress:
-            progress(n, row)
-    return _trace(seeds, samples, [row] * iterations)
+    row = test(noise)
+    rows = drive(lambda: (None, row), lambda carry, n: (carry, row), iterations, progress)
+    return _trace(seeds, samples, rows)
 
 
 def _trace(seeds, samples: int, rows: list[Row]) -> Trace:

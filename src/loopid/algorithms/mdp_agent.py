@@ -79,7 +79,8 @@ def _categorical(p: jax.Array, u: jax.Array) -> jax.Array:
 
 
 class MDPPlant(NamedTuple):
-    """The real finite MDP as the loop's plant (module doc)."""
+    """The real finite MDP as the loop's plant (module doc); implements
+    :class:`loopid.algorithms.plant.LoopPlant`."""
 
     mdp: FiniteMDP
     horizon: int

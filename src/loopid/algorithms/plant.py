@@ -11,7 +11,7 @@ pure operations that Algorithm 1 of Ross & Bagnell (2012) needs:
   ``t``, apply ``du``, observe ``x'`` (SPEC §3: with delay d the pending FIFO holds ``du`` for
   ``nu_pending="hold"`` (and ``"rollout"``, whose ν_e/ν_en samples skip the query), zeros for
   ``"zero"``; under ``delay_mode="latency"`` a plain one-step query, ``x' = f(x, du)``).
-- ``eval_noise(key, n_test)``: the process noise ``[n_test, horizon, 6]`` of ``n_test`` test
+- ``eval_noise(key, n_test)``: the process noise ``[n_test, horizon, n_noise]`` of ``n_test`` test
   trajectories (trajectory i from ``jax.random.split(key, n_test)[i]``).
 - ``eval_costs(K, noise)``: the test trajectories driven by that noise over the whole target,
   no early stop; each total cost ``Σ Δx_tᵀQΔx_t + Σ Δu_tᵀRΔu_t`` is capped at ``cost_cap``, and
@@ -22,8 +22,8 @@ Speed: the test trajectories are most of the loop's arithmetic (SPEC §4.4: 100 
 iteration). ``eval_seeds`` runs all of them (every seed's) as one column batch, ``x [n_x,
 S·n_test]``, so each state component is a contiguous vector over the batch and one ``lax.scan``
 step advances every trajectory; on a CPU this is 2.8x faster (``benchmarks/sim.py``) than
-``vmap`` of one trajectory (whose batch axis ends up leading, with the 21 components as the
-short minor axis). ``eval_one`` stays the plain one-trajectory form: the mixture policy's path
+``vmap`` of one trajectory (whose batch axis ends up leading, with the n_x state components as
+the short minor axis). ``eval_one`` stays the plain one-trajectory form: the mixture policy's path
 and the reference ``eval_seeds`` is tested against.
 
 Policies are time-varying affine gains in error coordinates, ``K: [horizon, m, n]``: the error
@@ -45,13 +45,12 @@ the applied ones under ``latency``; they differ by the last d commands, ~1e-12 o
 """
 
 from collections.abc import Callable
-from typing import NamedTuple
+from typing import NamedTuple, Protocol, runtime_checkable
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 
-from loopid.systems import helicopter
 from loopid.systems.base import Dynamics
 from loopid.systems.tasks import Task
 
@@ -59,7 +58,7 @@ from loopid.systems.tasks import Task
 class Transitions(NamedTuple):
     """A fixed-shape batch of recorded transitions ``(x_t, Δu_t, x_{t+1})``; leading axis ``[b]``.
 
-    ``x`` is the raw 21-dim state (needed to query the system again), ``dx``/``dx_next`` the error
+    ``x`` is the raw state ``[n_x]`` (needed to query the system again), ``dx``/``dx_next`` the error
     coordinates relative to ``target[t]``/``target[t+1]``, ``t`` the target time index (int32),
     ``mask`` which rows hold real data. Masked rows are zero-filled, never NaN.
     """
@@ -119,8 +118,35 @@ def flatten(tr: Transitions) -> Transitions:
     return jax.tree_util.tree_map(lambda a: a.reshape((-1, *a.shape[2:])), tr)
 
 
+@runtime_checkable
+class LoopPlant(Protocol):
+    """What Algorithm 1 (:mod:`loopid.algorithms.loop`) needs of a real system: the contract that
+    :class:`Plant` (JAX systems) and :class:`loopid.algorithms.mdp_agent.MDPPlant` (finite MDPs)
+    implement. Shapes: ``K [horizon, ...]`` the policy, ``S`` seeds, ``n_test`` test runs.
+
+    - ``horizon``: steps of one training rollout and of one test trajectory.
+    - ``rollout(K, key) -> transitions [horizon]``: one training rollout of policy ``K`` (a
+      NamedTuple of arrays with a leading ``[horizon]`` axis and a boolean ``mask``).
+    - ``eval_noise(key, n_test) -> [n_test, ...]``: the noise of ``n_test`` test runs.
+    - ``eval_one(K, noise) -> (cost, diverged)``: one test run (scalars).
+    - ``eval_seeds(K [S, ...], noise) -> (costs [S, n_test], diverged [S, n_test])``: every
+      seed's test runs; ``noise`` in the column layout of :func:`noise_columns`.
+    """
+
+    horizon: int
+
+    def rollout(self, K, key, *args): ...
+
+    def eval_noise(self, key, n_test: int): ...
+
+    def eval_one(self, K, noise): ...
+
+    def eval_seeds(self, K, noise): ...
+
+
 class Plant(NamedTuple):
-    """The operations of one real system and task (module docstring); pure and jittable."""
+    """The operations of one real JAX system and task (module docstring); pure and jittable.
+    Implements :class:`LoopPlant`."""
 
     task: Task
     horizon: int
@@ -143,7 +169,7 @@ class Plant(NamedTuple):
 
     def eval_costs(self, K: jax.Array, noise: jax.Array) -> tuple[jax.Array, jax.Array]:
         """Capped costs ``[n_test]`` and diverged flags of the test trajectories of ``K`` driven by
-        ``noise [n_test, horizon, 6]`` (the same noise for every policy: common random numbers)."""
+        ``noise [n_test, horizon, n_noise]`` (the same noise for every policy: common random numbers)."""
         costs, diverged = self.eval_seeds(K[None], noise_columns(noise[None]))
         return costs[0], diverged[0]
 
@@ -152,22 +178,6 @@ def noise_columns(noise: jax.Array) -> jax.Array:
     """Test noise ``[S, n_test, horizon, n_noise]`` (per seed, per trajectory) in the layout of
     :meth:`Plant.eval_seeds`, ``[horizon, n_noise, S, n_test]``."""
     return jnp.moveaxis(noise, (0, 1), (-2, -1))
-
-
-HELICOPTER = Dynamics(
-    helicopter.step_delayed,
-    helicopter.to_error,
-    helicopter.from_error,
-    helicopter.noise_sequence,
-    helicopter.N_STATE,
-    helicopter.N_ACTION,
-    columns=True,
-)
-
-
-def helicopter_plant(task: Task, **options) -> Plant:
-    """The helicopter of SPEC §3 under ``task`` (options as :func:`make_plant`)."""
-    return make_plant(task, HELICOPTER, **options)
 
 
 def make_plant(
@@ -184,7 +194,7 @@ def make_plant(
     Args:
       task: a :class:`loopid.systems.tasks.Task` (target ``[T, k]``, noise std, delay, Q, R, x0).
       dynamics: the system's step, error coordinates and noise.
-      stop_norm: training trajectories restart from μ when ``‖[Δx_{0:20}; Δu]‖₂ > stop_norm``.
+      stop_norm: training trajectories restart from μ when ``‖[Δx_{:−1}; Δu]‖₂ > stop_norm``.
       nu_pending: delayed-query convention for ν samples under ``fifo``: ``"hold"``, ``"zero"``
         or ``"rollout"`` (SPEC §3, §5.1; :data:`NU_PENDING`).
       cost_cap: a test trajectory's total cost is capped here and then counts as diverged.
@@ -266,7 +276,7 @@ def make_plant(
 
     def eval_one(K: jax.Array, noise: jax.Array) -> tuple[jax.Array, jax.Array]:
         """Capped total cost and diverged flag of one test trajectory of ``K`` under process
-        noise ``[horizon, 6]``."""
+        noise ``[horizon, n_noise]``."""
 
         def body(carry, inp):
             x, memory, total = carry

@@ -114,10 +114,17 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from loopid.algorithms.loop import Agent, Row, Trace, _trace, eval_noise, seed_keys
+from loopid.algorithms.loop import (
+    Agent,
+    Row,
+    Trace,
+    _trace,
+    drive,
+    eval_noise,
+    iteration_key,
+    seed_keys,
+)
 from loopid.algorithms.plant import Plant
-
-_TRAIN = 1
 
 
 class PGState(NamedTuple):
@@ -320,6 +327,7 @@ def run_policy_gradient(
     cost_cap: float = 1e8,
     samples_mode: str = "transitions",
     progress: Callable[[int, Row], None] | None = None,
+    noise: jax.Array | None = None,
 ) -> Trace:
     """Run the baseline on every seed; the result has the shape of every other method's.
 
@@ -329,7 +337,8 @@ def run_policy_gradient(
     reading of ``samples`` (``pg_samples``, :func:`budget`). The rows' ``policy_samples`` and
     ``valid_samples`` are what an iteration spent (:func:`spent`), and the Trace's ``samples``
     column counts m per iteration: transitions under ``"transitions"``, *rollouts* (of
-    ``min(horizon, T)`` steps each) under ``"rollouts"``."""
+    ``min(horizon, T)`` steps each) under ``"rollouts"``. ``noise``: the seeds' test noise
+    (``EvalNoise.test``) when the caller keeps a :func:`loopid.algorithms.loop.noise_program`."""
     if not (sigma > 0 and step > 0):
         raise ValueError(f"pg_sigma and pg_step must be > 0, got {sigma!r}, {step!r}")
     _, P = budget(samples, horizon, plant.horizon, samples_mode=samples_mode)
@@ -350,27 +359,27 @@ def run_policy_gradient(
         zero = jnp.zeros(S)
         count = jnp.full(S, used, jnp.int32)  # every sample is of the (perturbed) policy
         return Row(
-            jnp.mean(costs, axis=1), jnp.median(costs, axis=1), jnp.sum(div, axis=1), zero, zero,
-            zero, count, count, jnp.full(S, info.converged), jnp.full(S, info.spectral_radius), {},
+            test_cost=jnp.mean(costs, axis=1), test_cost_median=jnp.median(costs, axis=1),
+            diverged=jnp.sum(div, axis=1), loss_nu=zero, loss_policy=zero, online_loss=zero,
+            policy_samples=count, valid_samples=count, solver_converged=jnp.full(S, info.converged),
+            spectral_radius=jnp.full(S, info.spectral_radius), extra={},
         )  # fmt: skip
 
     @jax.jit
     def advance(state, keys, noise, it):
-        k = jax.vmap(lambda key: jax.random.fold_in(jax.random.fold_in(key, _TRAIN), it))(keys)
+        k = jax.vmap(lambda key: iteration_key(key, it))(keys)
         state, _ = jax.vmap(one_step)(state, k)
         return state, evaluate(state.theta, noise)
 
-    noise = eval_noise(plant, keys, n_test, "last").test
+    if noise is None:
+        noise = eval_noise(plant, keys, n_test, "last").test
     S = keys.shape[0]
     one = init_state(free, step * sigma * np.sqrt(m), probes=P)
     state = jax.tree_util.tree_map(lambda a: jnp.broadcast_to(a, (S, *a.shape)), one)
-    row = jax.jit(evaluate)(state.theta, noise)
-    rows = [row]
-    if progress:
-        progress(1, row)
-    for it in range(2, iterations + 1):
-        state, row = advance(state, keys, noise, jnp.int32(it))
-        rows.append(row)
-        if progress:
-            progress(it, row)
+    rows = drive(
+        lambda: (state, jax.jit(evaluate)(state.theta, noise)),
+        lambda state, it: advance(state, keys, noise, jnp.int32(it)),
+        iterations,
+        progress,
+    )
     return _trace(np.asarray(seeds), samples, rows)

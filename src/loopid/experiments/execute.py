@@ -1,20 +1,27 @@
-"""Running a set of cells (scenario × method) into a run directory, with progress and resume.
+"""Running a set of cells (scenario × method) into a run directory, with progress and resume,
+for any family (:mod:`loopid.experiments.families`).
 
 :func:`run_cells` checks everything, prepares the run directory (refusing one made with another
 configuration), then hands the unfinished cells to an executor
 (:mod:`loopid.experiments.executors`) and saves each cell the moment it finishes (atomically),
 rewriting ``results.parquet`` in the fixed scenario × method order. Rerunning the same call
-skips the finished cells and ends with the same table, row for row.
+skips the finished cells and ends with the same table, row for row. :func:`write_outputs` draws
+``figure.png`` and writes ``report.md`` through the run's family. One run directory holds one
+family's scenarios.
 """
 
 import time
+import tomllib
 from collections.abc import Callable, Mapping, Sequence
+from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pyarrow as pa
 
 import loopid
 from loopid.algorithms.loop import Row
+from loopid.experiments.config import seed_list
 from loopid.experiments.executors import (
     Job,
     check_executor,
@@ -22,10 +29,13 @@ from loopid.experiments.executors import (
     executor,
     ray_session,
 )
-from loopid.experiments.results import trace_table, with_metadata
+from loopid.experiments.families import FAMILIES, Family, family_of, scenario_names
+from loopid.experiments.report import cell_times, report_text
+from loopid.experiments.results import trace_table, with_metadata, write_atomic_bytes
 from loopid.experiments.rundir import RunDir
-from loopid.experiments.runner import check_methods, run
-from loopid.experiments.scenarios import Scenario
+
+#: A scenario of any family (its config dataclass).
+Scenario = Any
 
 #: ``on_cell(scenario, method, iterations) -> per-iteration callback`` (for progress bars).
 ProgressFactory = Callable[[str, str, int], Callable[[int, Row], None] | None]
@@ -51,6 +61,7 @@ def resolved_config(scenarios: Sequence[Scenario], methods: Methods, seeds) -> d
     return {
         "run": {
             "loopid_version": loopid.__version__,
+            "family": family_of(scenarios[0]).name,
             "methods": listed,
             "seeds": [int(s) for s in seeds],
         },
@@ -73,7 +84,7 @@ def run_cell(
         if progress is not None:
             progress(n, row)
 
-    trace = run(method, s, seeds, progress=tick)
+    trace = family_of(s).run(method, s, seeds, progress=tick)
     wall = time.perf_counter() - t0
     table = trace_table(s.name, method, trace)
     return with_metadata(table, wall_s=f"{wall:.3f}", first_s=f"{first[0] or wall:.3f}")
@@ -86,6 +97,12 @@ def check_cells(scenarios: Sequence[Scenario], methods: Methods, seeds) -> np.nd
     names = [s.name for s in scenarios]
     if len(set(names)) != len(names):
         raise ValueError(f"scenario names must differ, got {names}")
+    family = family_of(scenarios[0])
+    others = sorted({family_of(s).name for s in scenarios} - {family.name})
+    if others:
+        raise ValueError(
+            f"one run directory holds one family's scenarios: {family.name}, not also {others}"
+        )
     if isinstance(methods, Mapping) and set(methods) != set(names):
         raise ValueError(f"methods are given for {sorted(methods)}, the scenarios are {names}")
     for s in scenarios:
@@ -94,12 +111,15 @@ def check_cells(scenarios: Sequence[Scenario], methods: Methods, seeds) -> np.nd
             raise ValueError("no methods to run")
         if len(set(chosen)) != len(chosen):
             raise ValueError(f"methods must differ, got {chosen}")
-        check_methods(s, chosen)
-    seeds = np.arange(scenarios[0].seeds) if seeds is None else np.asarray(seeds)
+        family.check_methods(s, chosen)
+    seeds = seed_list(scenarios[0]) if seeds is None else np.asarray(seeds)
     if seeds.ndim != 1 or seeds.size == 0 or not np.issubdtype(seeds.dtype, np.integer):
         raise ValueError(f"seeds must be a non-empty list of integers, got {seeds.tolist()!r}")
     if (seeds < 0).any():
         raise ValueError(f"seeds must be >= 0, got {seeds.tolist()}")
+    if family.check is not None:
+        for s in scenarios:
+            family.check(s)
     return seeds
 
 
@@ -117,12 +137,12 @@ def run_cells(
 ) -> pa.Table:
     """Run every (scenario, method) cell not yet finished in ``out``; return the full table.
 
-    ``methods``: one list for every scenario, or ``{scenario name: list}``. ``seeds`` defaults
-    to ``range(scenario.seeds)`` of the first scenario (all scenarios of one run share the
-    seeds). ``executor_name``: ``local`` or ``ray`` (``ray_address`` joins a
-    cluster). ``workers``: the local executor's worker processes (1: in this process). Each
-    finished cell is saved at once (atomically); ``results.parquet`` is rewritten after every
-    cell.
+    ``scenarios``: configs of one family. ``methods``: one list for every scenario, or
+    ``{scenario name: list}``. ``seeds`` defaults to the first scenario's
+    (:func:`loopid.experiments.config.seed_list`; all scenarios of one run share the seeds).
+    ``executor_name``: ``local`` or ``ray`` (``ray_address`` joins a cluster). ``workers``: the
+    local executor's worker processes (1: in this process). Each finished cell is saved at once
+    (atomically); ``results.parquet`` is rewritten after every cell.
     """
     seeds = check_cells(scenarios, methods, seeds)
     check_executor(executor_name, ray_address)
@@ -158,3 +178,46 @@ def run_cells(
                 f"final median cost {final:.4g}"
             )
     return rd.write_results(order)
+
+
+def run_family(run_dir) -> tuple[Family, dict[str, Scenario]]:
+    """The family of a run directory and its scenarios' configs, from ``config.toml``; without
+    one (a bare ``results.parquet``), the family and packaged configs of the table's scenario
+    names (the helicopter's for unknown names)."""
+    run_dir = Path(run_dir)
+    cfg_file = run_dir / "config.toml"
+    if cfg_file.is_file():
+        config = tomllib.loads(cfg_file.read_text())
+        name = config.get("run", {}).get("family", "helicopter")
+        if name not in FAMILIES:
+            raise ValueError(f"{cfg_file}: unknown family {name!r}")
+        family = FAMILIES[name]
+        try:
+            configs = {
+                n: family.config(**d) for n, d in config.get("scenario", {}).items()
+            }
+        except (TypeError, ValueError) as e:
+            raise ValueError(f"{cfg_file}: {' '.join(str(e).split())}") from None
+        return family, configs
+    return None, {}
+
+
+def write_outputs(run_dir, table: pa.Table, command_s: float | None = None) -> None:
+    """``figure.png`` and ``report.md`` of a run directory, drawn by its family."""
+    run_dir = Path(run_dir)
+    family, configs = run_family(run_dir)
+    if family is None:
+        names = scenario_names()
+        present = list(dict.fromkeys(table.column("scenario").to_pylist()))
+        family = next((names[s] for s in present if s in names), FAMILIES["helicopter"])
+        configs = {s: family.scenarios[s] for s in present if s in family.scenarios}
+    family.figure(table, run_dir / "figure.png", configs)
+    cfg_file = run_dir / "config.toml"
+    text = report_text(
+        table,
+        family.report(table, configs),
+        config_text=cfg_file.read_text() if cfg_file.is_file() else None,
+        times=cell_times(run_dir),
+        command_s=command_s,
+    )
+    write_atomic_bytes(text.encode(), run_dir / "report.md")

@@ -26,23 +26,21 @@ import time
 from collections.abc import Callable, Iterator, Sequence
 from contextlib import contextmanager, nullcontext
 from pathlib import Path
-from typing import NamedTuple
+from typing import Any, NamedTuple
 
 import pyarrow as pa
-
-from loopid.experiments.scenarios import Scenario
 
 EXECUTORS = ("local", "ray")
 
 
 class Job(NamedTuple):
-    """One cell: a scenario and a method."""
+    """One cell: a scenario (any family's config) and a method."""
 
-    scenario: Scenario
+    scenario: Any
     method: str
 
 
-#: ``cell(scenario, method, seeds, progress=None) -> table`` (see :func:`execute.run_cell`).
+#: ``cell(scenario, method, seeds, progress=None) -> table`` (:func:`execute.run_cell`).
 CellFunction = Callable[..., pa.Table]
 
 
@@ -171,7 +169,7 @@ def _init_worker(cache_dir: str, messages, parent: int) -> None:
     threading.Thread(target=watch, daemon=True).start()
 
 
-def _pool_cell(cell: CellFunction, index: int, s: Scenario, method: str, seeds) -> pa.Table:
+def _pool_cell(cell: CellFunction, index: int, s, method: str, seeds) -> pa.Table:
     """One cell in a worker; progress goes back to the parent as ``(index, n, row)``, with
     ``n = 0`` (no row) when the cell starts."""
     import jax
@@ -244,19 +242,19 @@ def _run_pool(jobs, seeds, cell, on_cell, workers) -> Iterator[tuple[Job, pa.Tab
                 p.terminate()
 
 
-def _ray_cell(s: Scenario, method: str, seeds, cache_dir: str) -> pa.Table:
-    """The body of one Ray task (runs in a worker process)."""
+def _ray_cell(cell: CellFunction, s, method: str, seeds, cache_dir: str) -> pa.Table:
+    """The body of one Ray task (runs in a worker process): ``cell`` (a module-level function,
+    pickled by name) on one scenario and method."""
     import loopid  # noqa: F401  (float64 on)
-    from loopid.experiments import execute
 
     compile_cache(cache_dir)
-    return execute.run_cell(s, method, seeds)
+    return cell(s, method, seeds)
 
 
 def run_ray(
     jobs: Sequence[Job],
     seeds,
-    cell: CellFunction | None = None,
+    cell: CellFunction,
     *,
     on_cell: Callable | None = None,
     address: str | None = None,
@@ -265,9 +263,9 @@ def run_ray(
     """Compute each cell as a Ray task; yield them as they finish.
 
     ``address``: an existing cluster (``ray.init(address=...)``); otherwise a local Ray with
-    ``num_cpus`` (default: the machine's CPUs), shut down when the generator ends. ``cell`` and
-    ``on_cell`` are accepted for the common signature; workers run :func:`execute.run_cell`
-    (the driver sees a cell when it is finished).
+    ``num_cpus`` (default: the machine's CPUs), shut down when the generator ends. Workers run
+    ``cell`` (a module-level function); ``on_cell`` is accepted for the common signature (the
+    driver sees a cell when it is finished).
     """
     import ray
 
@@ -276,7 +274,9 @@ def run_ray(
 
         task = ray.remote(num_cpus=1, max_retries=0)(_ray_cell)
         cache_dir = jax.config.jax_compilation_cache_dir or compile_cache()
-        pending = {task.remote(job.scenario, job.method, seeds, cache_dir): job for job in jobs}
+        pending = {
+            task.remote(cell, job.scenario, job.method, seeds, cache_dir): job for job in jobs
+        }
         while pending:
             done, _ = ray.wait(list(pending), num_returns=1)
             job = pending.pop(done[0])

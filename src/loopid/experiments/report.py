@@ -1,230 +1,23 @@
-"""``report.md``: configuration, wall time, final costs and the paper's five findings (SPEC §4.5),
-each computed from the results table and marked *holds* / *does not hold*.
+"""``report.md`` of a run directory: what every family's report shares, then the family's own
+sections (:class:`loopid.experiments.families.base.Family` ``report``).
 
-Every number comes from ``results.parquet`` (and the cells' recorded wall times); nothing is
-tuned to make a finding hold. The statistics, per panel (scenario) and method, are over seeds of
-the test cost at the method's **final** iteration (``final``), or at iteration 2 (``first``, the
-first policy fitted to data). Each finding is judged on **medians** over seeds (SPEC §4.4: a few
-diverging seeds, capped at ``cost_cap``, dominate means) and, for comparison, on means.
-
-"Good performance" (findings 2 and 5) is a fixed threshold chosen before looking at any result:
-a final cost at most :data:`GOOD_FACTOR` times the linearised expert L's in the same panel.
+The common part: the version and date, the figure, the resolved ``config.toml``, the wall time
+(this command's, and the cells' as each recorded it) and, per scenario, the final test cost of
+every method (:func:`final_table`). Every number comes from ``results.parquet`` and the cells'
+recorded times. The helicopter's sections add the paper's findings
+(:mod:`loopid.experiments.findings`); the finite MDPs' add the exact bounds.
 """
 
 import datetime
 import os
 import platform
-from collections.abc import Callable
 from pathlib import Path
-from typing import NamedTuple
 
 import numpy as np
 import pyarrow as pa
 
 import loopid
-from loopid.experiments.results import read_table, write_atomic_bytes
-
-#: The scenario fields that are readings of the paper's open details (SPEC §5).
-READING_FIELDS = ("delay_mode", "nu_pending", "funnel_nominal", "pads", "pg_samples")
-#: "Good performance": final cost at most this multiple of the expert's (findings 2 and 5).
-GOOD_FACTOR = 2.0
-NUS = ("t", "e", "en")
-STATS: dict[str, Callable[[np.ndarray], float]] = {"median": np.median, "mean": np.mean}
-
-
-class Finding(NamedTuple):
-    """One of SPEC §4.5's findings: ``verdict`` on medians, ``mean_verdict`` on means (each
-    ``holds``, ``does not hold`` or ``not measured``), how it was computed, and the numbers."""
-
-    number: int
-    claim: str
-    how: str
-    verdict: str
-    mean_verdict: str
-    details: list[str]
-
-
-class Costs:
-    """Per-seed test costs of a table, by (scenario, method, iteration)."""
-
-    def __init__(self, table: pa.Table):
-        self.scenario = np.asarray(table.column("scenario").to_pylist(), dtype=object)
-        self.method = np.asarray(table.column("method").to_pylist(), dtype=object)
-        self.iteration = np.asarray(table.column("iteration"))
-        self.cost = np.asarray(table.column("test_cost"))
-        self.diverged = np.asarray(table.column("diverged"))
-        self.scenarios = list(dict.fromkeys(self.scenario))
-        self.methods = list(dict.fromkeys(self.method))
-
-    def has(self, s: str, m: str) -> bool:
-        return bool(np.any((self.scenario == s) & (self.method == m)))
-
-    def last_iteration(self, s: str, m: str) -> int:
-        return int(self.iteration[(self.scenario == s) & (self.method == m)].max())
-
-    def at(self, s: str, m: str, iteration: int | None = None) -> np.ndarray:
-        """``[seeds]`` test costs at ``iteration`` (default: the final one)."""
-        it = self.last_iteration(s, m) if iteration is None else iteration
-        return self.cost[(self.scenario == s) & (self.method == m) & (self.iteration == it)]
-
-    def diverged_seeds(self, s: str, m: str) -> int:
-        """Seeds with at least one diverged test trajectory at the final iteration."""
-        sel = (self.scenario == s) & (self.method == m)
-        sel &= self.iteration == self.last_iteration(s, m)
-        return int(np.sum(self.diverged[sel] > 0))
-
-
-def reading_text(v) -> str:
-    return ("true" if v else "false") if isinstance(v, bool) else str(v)
-
-
-def _g(x: float) -> str:
-    return f"{x:.4g}"
-
-
-def _verdict(results: list[bool]) -> str:
-    if not results:
-        return "not measured"
-    return "holds" if all(results) else "does not hold"
-
-
-def _judge(number, claim, how, check) -> Finding:
-    """Run ``check(stat) -> (list of bools, detail lines)`` on medians and on means; the details
-    are the median lines, each followed by its mean line where the outcome differs."""
-    ok_med, details = check(STATS["median"])
-    ok_mean, mean_details = check(STATS["mean"])
-    lines = []
-    for a, b, d, dm in zip(ok_med, ok_mean, details, mean_details, strict=False):
-        lines.append(d if a == b else f"{d}; on means: {dm}")
-    lines += details[len(ok_med) :]  # lines that judge nothing (none at present)
-    return Finding(number, claim, how, _verdict(ok_med), _verdict(ok_mean), lines)
-
-
-def findings(table: pa.Table, hover_panels: set[str] | None = None) -> list[Finding]:
-    """The five findings of SPEC §4.5 computed from ``table``.
-
-    ``hover_panels``: the scenarios whose task is a hover (finding 3); default: those whose name
-    starts with ``hover``.
-    """
-    c = Costs(table)
-    if hover_panels is None:
-        hover_panels = {s for s in c.scenarios if s.startswith("hover")}
-    hover = [s for s in c.scenarios if s in hover_panels]
-
-    def f1(stat):
-        ok, out = [], []
-        for s in c.scenarios:
-            for nu in NUS:
-                d, b = f"dagger-{nu}", f"batch-{nu}"
-                if c.has(s, d) and c.has(s, b):
-                    dv, bv = stat(c.at(s, d)), stat(c.at(s, b))
-                    ok.append(dv < bv)
-                    out.append(f"{s} ν_{nu}: D {_g(dv)} {'<' if dv < bv else '>='} B {_g(bv)}")
-        return ok, out
-
-    def good(stat, s, m):
-        return stat(c.at(s, m)) <= GOOD_FACTOR * stat(c.at(s, "expert"))
-
-    def f2(stat):
-        ok, out = [], []
-        for s in c.scenarios:
-            ds = [f"dagger-{nu}" for nu in NUS if c.has(s, f"dagger-{nu}")]
-            bs = [f"batch-{nu}" for nu in NUS if c.has(s, f"batch-{nu}")]
-            if not c.has(s, "expert") or len(ds) < 3 or len(bs) < 3:
-                continue
-            d_good = [m for m in ds if good(stat, s, m)]
-            b_good = [m for m in bs if good(stat, s, m)]
-            ok.append(len(d_good) == 3 and len(b_good) == 1)
-            out.append(
-                f"{s}: good DAgger {len(d_good)}/3 ({', '.join(d_good) or 'none'}), "
-                f"good Batch {len(b_good)}/3 ({', '.join(b_good) or 'none'}); "
-                f"L {_g(stat(c.at(s, 'expert')))}"
-            )
-        return ok, out
-
-    def f3(stat):
-        ok, out = [], []
-        for s in hover:
-            if not c.has(s, "expert"):
-                continue
-            L = stat(c.at(s, "expert"))
-            for nu in NUS:
-                d = f"dagger-{nu}"
-                if c.has(s, d):
-                    v = stat(c.at(s, d))
-                    ok.append(v < L)
-                    out.append(f"{s} D_{nu} {_g(v)} {'<' if v < L else '>='} L {_g(L)}")
-        return ok, out
-
-    def f4(stat):
-        ok, out = [], []
-        for s in c.scenarios:
-            ds = [f"dagger-{nu}" for nu in NUS if c.has(s, f"dagger-{nu}")]
-            if not c.has(s, "abbeel") or not ds or c.last_iteration(s, "abbeel") < 2:
-                continue
-            first, final = stat(c.at(s, "abbeel", 2)), stat(c.at(s, "abbeel"))
-            best = min(ds, key=lambda m: stat(c.at(s, m)))
-            bv = stat(c.at(s, best))
-            ok.append(final < first and final > bv)
-            out.append(
-                f"{s}: A first {_g(first)} -> final {_g(final)} "
-                f"({'improves' if final < first else 'no improvement'}); "
-                f"best DAgger {best} {_g(bv)} ({'A above' if final > bv else 'A not above'})"
-            )
-        return ok, out
-
-    def f5(stat):
-        ok, out = [], []
-        for s in c.scenarios:
-            if not c.has(s, "pg") or not c.has(s, "expert"):
-                continue
-            first, final = stat(c.at(s, "pg", 1)), stat(c.at(s, "pg"))
-            L = stat(c.at(s, "expert"))
-            ok.append(final > GOOD_FACTOR * L)
-            out.append(
-                f"{s}: PG {_g(first)} -> {_g(final)} (x{first / final:.3g} better), "
-                f"{final / L:.3g} x L"
-            )
-        return ok, out
-
-    good_txt = f"'good' = final cost <= {GOOD_FACTOR:g} x L's in the same panel"
-    return [
-        _judge(
-            1,
-            "For every ν and in all panels, DAgger ends below Batch with the same ν.",
-            "For each panel and ν in {t, e, en}: final(dagger-ν) < final(batch-ν); "
-            "holds if every comparison does.",
-            f1,
-        ),
-        _judge(
-            2,
-            "DAgger reaches good performance with every ν; Batch does with only one ν per panel.",
-            f"{good_txt}. Holds if, in every panel, all three DAgger curves are good and exactly "
-            "one Batch curve is.",
-            f2,
-        ),
-        _judge(
-            3,
-            "In hover (both delays) DAgger ends below the linearised expert L.",
-            "For each hover panel and ν: final(dagger-ν) < final(expert); holds if every one does.",
-            f3,
-        ),
-        _judge(
-            4,
-            "Abbeel's algorithm improves on its first policy, then plateaus above DAgger.",
-            "For each panel: final(abbeel) < first(abbeel) (iteration 2, the policy fitted to "
-            "the expert's data) and final(abbeel) > the best final(dagger-ν); holds if both do "
-            "in every panel.",
-            f4,
-        ),
-        _judge(
-            5,
-            "The policy-gradient baseline improves little with 100 samples per iteration.",
-            f"For each panel: PG does not reach good performance ({good_txt}): final(pg) > "
-            f"{GOOD_FACTOR:g} x final(expert); the improvement from iteration 1 is shown.",
-            f5,
-        ),
-    ]
+from loopid.experiments.findings import Costs, _g
 
 
 def cell_times(run_dir: Path) -> dict[tuple[str, str], tuple[float, float]]:
@@ -240,7 +33,9 @@ def cell_times(run_dir: Path) -> dict[tuple[str, str], tuple[float, float]]:
     return out
 
 
-def _final_table(c: Costs, s: str) -> list[str]:
+def final_table(c: Costs, s: str) -> list[str]:
+    """Markdown table of scenario ``s``: per method the final cost's mean ± s.e. and median over
+    seeds, the seeds with a diverged test run and the last iteration."""
     lines = [
         "| method | final mean ± s.e. | final median | seeds diverged | iterations |",
         "|---|---|---|---|---|",
@@ -257,23 +52,36 @@ def _final_table(c: Costs, s: str) -> list[str]:
     return lines
 
 
+def final_cost_sections(
+    table: pa.Table, notes: dict[str, str] | None = None, title: str = "Final test cost"
+) -> list[str]:
+    """``## Final test cost``, then per scenario its :func:`final_table`, preceded by the
+    scenario's line in ``notes`` when there is one."""
+    c = Costs(table)
+    lines = [f"## {title} per scenario and method", ""]
+    for s in c.scenarios:
+        lines += [f"### {s}", ""]
+        if notes and s in notes:
+            lines += [notes[s], ""]
+        lines += [*final_table(c, s), ""]
+    return lines
+
+
 def report_text(
     table: pa.Table,
+    sections: list[str],
     *,
     config_text: str | None = None,
-    hover_panels: set[str] | None = None,
     times: dict | None = None,
     command_s: float | None = None,
-    readings: dict[str, str] | None = None,
+    title: str = "loopid report",
 ) -> str:
-    """The Markdown of ``report.md`` (see the module docstring). ``readings``: per panel, the
-    readings of SPEC §5 it was run under (one line of text)."""
+    """The Markdown of ``report.md``: the common header (module docstring), then ``sections``."""
     import jax
 
-    c = Costs(table)
     now = datetime.datetime.now(datetime.UTC).strftime("%Y-%m-%d %H:%M UTC")
     L = [
-        "# loopid report",
+        f"# {title}",
         "",
         f"loopid {loopid.__version__}, {now}; {table.num_rows} rows from `results.parquet`; "
         f"figure: `figure.png`.",
@@ -305,68 +113,7 @@ def report_text(
             f"cache, plus two iterations): {first:.1f} s; after it: {wall - first:.1f} s",
         ]
     L.append("")
-    L += ["## Final test cost per panel and method", ""]
-    for s in c.scenarios:
-        L += [f"### {s}", ""]
-        if readings and s in readings:
-            L += [f"Readings (SPEC §5): {readings[s]}.", ""]
-        L += [*_final_table(c, s), ""]
-    L += [
-        "## The paper's findings (SPEC §4.5)",
-        "",
-        "Verdicts on medians over seeds (a few diverging seeds dominate means, SPEC §4.4); the "
-        "verdict on means follows, and a comparison whose outcome differs on means says so. "
-        "`final(m)` is the test cost at method m's last iteration; numbers are medians.",
-        "",
-    ]
-    seeds = len(np.unique(np.asarray(table.column("seed"))))
-    if seeds < 20:
-        L += [
-            f"*A small run ({seeds} seeds): the findings are claims about the protocol scale "
-            "(SPEC §4.4, 20 seeds); here they are computed the same way but say little.*",
-            "",
-        ]
-    for f in findings(table, hover_panels):
-        L += [
-            f"{f.number}. **{f.claim}** — **{f.verdict}** (on means: {f.mean_verdict})",
-            f"   - computed: {f.how}",
-            *[f"   - {d}" for d in f.details],
-        ]
-    L.append("")
+    L += sections
+    if L[-1] != "":
+        L.append("")
     return "\n".join(L)
-
-
-def write_report(run_dir: Path, table: pa.Table | None = None, *, command_s=None) -> Path:
-    """Write ``run_dir/report.md`` from its ``results.parquet`` (and ``config.toml`` and the
-    cells' timings where present); return its path."""
-    import tomllib
-
-    run_dir = Path(run_dir)
-    if table is None:
-        table = read_table(run_dir / "results.parquet")
-    cfg_file = run_dir / "config.toml"
-    config_text = cfg_file.read_text() if cfg_file.is_file() else None
-    hover_panels = None
-    readings = {}
-    if config_text is not None:
-        scenarios = tomllib.loads(config_text).get("scenario", {})
-        hover_panels = {
-            name
-            for name, d in scenarios.items()
-            if isinstance(d, dict) and d.get("task") in ("hover", "hover-delay")
-        }
-        for name, d in scenarios.items():
-            shown = [f"{k} = {reading_text(d[k])}" for k in READING_FIELDS if k in d]
-            if shown:
-                readings[name] = ", ".join(shown)
-    text = report_text(
-        table,
-        config_text=config_text,
-        hover_panels=hover_panels,
-        times=cell_times(run_dir),
-        command_s=command_s,
-        readings=readings,
-    )
-    path = run_dir / "report.md"
-    write_atomic_bytes(text.encode(), path)
-    return path

@@ -14,48 +14,18 @@ rerunning the same command skips the finished cells. A directory whose ``config.
 from the new run's configuration is refused rather than mixed.
 """
 
-import json
 import tomllib
 from pathlib import Path
 
 import pyarrow as pa
+import tomli_w
 
 from loopid.experiments.results import concat, metadata, read_table, write_atomic
 
 
-def _toml_value(v) -> str:
-    if isinstance(v, bool):
-        return "true" if v else "false"
-    if isinstance(v, int | float):
-        return repr(v)
-    if isinstance(v, str):
-        return json.dumps(v)  # a TOML basic string for these ASCII names
-    if isinstance(v, list | tuple):
-        return "[" + ", ".join(_toml_value(x) for x in v) + "]"
-    raise TypeError(f"cannot write {v!r} to TOML")
-
-
 def to_toml(config: dict) -> str:
-    """Write a two-level dict (tables of scalars and lists; one nested level of tables) as TOML.
-
-    Hand-written because the configuration is flat and a writer is the only TOML dependency
-    Python's standard library lacks (``tomllib`` reads).
-    """
-    lines: list[str] = []
-
-    def table(prefix: str, d: dict) -> None:
-        scalars = {k: v for k, v in d.items() if not isinstance(v, dict)}
-        if scalars:
-            lines.append(f"[{prefix}]")
-            lines.extend(f"{k} = {_toml_value(v)}" for k, v in scalars.items())
-            lines.append("")
-        for k, v in d.items():
-            if isinstance(v, dict):
-                table(f"{prefix}.{json.dumps(k) if '-' in k else k}", v)
-
-    for key, value in config.items():
-        table(key, value)
-    return "\n".join(lines)
+    """``config`` (tables of TOML values) as TOML text (tomli-w)."""
+    return tomli_w.dumps(config)
 
 
 class RunDir:

@@ -4,21 +4,20 @@ A :class:`Scenario` is one frozen record; every *(choice)* of the SPEC is a fiel
 record is written into each run directory's ``config.toml``. The paper's three panels are TOML
 files shipped in the package (``experiments/scenarios/{hover,hover-delay,funnel}.toml``, every
 field spelled out); ``SCENARIOS`` holds them, :func:`scenario` returns one with fields overridden
-and validated, and :func:`read_config` reads and validates a user's ``--config`` TOML.
+and validated, and :func:`read_config` reads a user's ``--config`` TOML.
 """
 
 import dataclasses
-import math
 import re
 import tomllib
 from dataclasses import dataclass
 from importlib import resources
-from pathlib import Path
 
 from loopid.algorithms.collect import SAMPLING_MODES
 from loopid.algorithms.loop import TEST_POLICIES
 from loopid.algorithms.plant import check_delay_reading
 from loopid.algorithms.policy_gradient import SAMPLES_MODES as PG_SAMPLES
+from loopid.experiments.config import check_int, check_number, read_flat_file
 from loopid.systems.funnel_nominal import FUNNEL_NOMINALS
 from loopid.systems.tasks import TASK_NAMES
 
@@ -106,19 +105,6 @@ class Scenario:
 _NAME = re.compile(r"[a-z0-9][a-z0-9-]*")
 
 
-def _positive_int(name: str, v, minimum: int = 1) -> None:
-    if isinstance(v, bool) or not isinstance(v, int) or v < minimum:
-        raise ValueError(f"{name} must be an integer >= {minimum}, got {v!r}")
-
-
-def _number(name: str, v, low: float, high: float = math.inf, *, open_low=False) -> None:
-    ok = isinstance(v, int | float) and not isinstance(v, bool) and math.isfinite(v)
-    ok = ok and (v > low if open_low else v >= low) and v <= high
-    if not ok:
-        bound = f"({low}, {high}]" if open_low else f"[{low}, {high}]"
-        raise ValueError(f"{name} must be a number in {bound}, got {v!r}")
-
-
 def validate(s: Scenario) -> None:
     """Raise ``ValueError`` naming the first bad field of ``s`` and what is allowed."""
     if not isinstance(s.name, str) or not _NAME.fullmatch(s.name):
@@ -127,15 +113,15 @@ def validate(s: Scenario) -> None:
         )
     if not isinstance(s.task, str) or s.task not in TASK_NAMES:
         raise ValueError(f"task must be one of {', '.join(TASK_NAMES)}, got {s.task!r}")
-    _positive_int("iterations", s.iterations)
-    _positive_int("samples", s.samples)
-    _positive_int("test_trajectories", s.test_trajectories)
-    _positive_int("seeds", s.seeds)
-    _positive_int("pg_horizon", s.pg_horizon)
+    check_int("iterations", s.iterations)
+    check_int("samples", s.samples)
+    check_int("test_trajectories", s.test_trajectories)
+    check_int("seeds", s.seeds)
+    check_int("pg_horizon", s.pg_horizon)
     if s.noise_std is not None:
-        _number("noise_std", s.noise_std, 0.0)
+        check_number("noise_std", s.noise_std, 0.0)
     if s.delay is not None:
-        _positive_int("delay", s.delay, minimum=0)
+        check_int("delay", s.delay, minimum=0)
     if not isinstance(s.pads, bool):
         raise ValueError(f"pads must be true or false, got {s.pads!r}")
     if s.sampling not in SAMPLING_MODES:
@@ -151,14 +137,14 @@ def validate(s: Scenario) -> None:
         )
     if s.pg_samples not in PG_SAMPLES:
         raise ValueError(f"pg_samples must be one of {', '.join(PG_SAMPLES)}, got {s.pg_samples!r}")
-    _number("gamma", s.gamma, 0.0, 1.0 - 1e-12, open_low=True)
-    _number("dagger_fraction", s.dagger_fraction, 0.0, 1.0)
-    _number("stop_norm", s.stop_norm, 0.0, open_low=True)
+    check_number("gamma", s.gamma, 0.0, 1.0 - 1e-12, open_low=True)
+    check_number("dagger_fraction", s.dagger_fraction, 0.0, 1.0)
+    check_number("stop_norm", s.stop_norm, 0.0, open_low=True)
     for name in ("nu_state_var", "nu_action_var", "expert_action_var", "ftrl_lambda"):
-        _number(name, getattr(s, name), 0.0)
-    _number("cost_cap", s.cost_cap, 0.0, open_low=True)
-    _number("pg_sigma", s.pg_sigma, 0.0, open_low=True)
-    _number("pg_step", s.pg_step, 0.0, open_low=True)
+        check_number(name, getattr(s, name), 0.0)
+    check_number("cost_cap", s.cost_cap, 0.0, open_low=True)
+    check_number("pg_sigma", s.pg_sigma, 0.0, open_low=True)
+    check_number("pg_step", s.pg_step, 0.0, open_low=True)
 
 
 FIELDS: tuple[str, ...] = tuple(f.name for f in dataclasses.fields(Scenario))
@@ -201,36 +187,23 @@ def scenario(base: str, /, **overrides) -> Scenario:
     return SCENARIOS[base].replace(**overrides)
 
 
-#: Keys a ``--config`` file may hold besides the scenario fields.
-RUN_KEYS = ("methods",)
+def read_config(path) -> tuple[dict, list[str] | None]:
+    """A user's ``--config`` TOML: flat keys, each a :class:`Scenario` field or ``methods`` (a
+    list of method names). Returns ``(fields, methods or None)``; one-line ``ValueError`` for an
+    unreadable file, bad TOML or an unknown key (values are checked when the scenario is built).
+    """
+    return read_flat_file(path, FIELDS)
 
 
-def read_config(path) -> dict:
-    """Read a user's ``--config`` TOML: flat keys, each a :class:`Scenario` field or ``methods``
-    (a list of method names). Returns the dict; raises ``ValueError`` with one line naming an
-    unreadable file, a TOML error, an unknown key or a value of the wrong kind (the values
-    themselves are validated when the scenario is built)."""
-    path = Path(path)
-    try:
-        text = path.read_text(encoding="utf-8")
-    except OSError as e:
-        raise ValueError(f"--config {str(path)!r}: cannot read it ({e.strerror})") from None
-    try:
-        cfg = tomllib.loads(text)
-    except tomllib.TOMLDecodeError as e:
-        raise ValueError(f"--config {str(path)!r}: not valid TOML ({e})") from None
-    allowed = (*FIELDS, *RUN_KEYS)
-    unknown = sorted(set(cfg) - set(allowed))
-    if unknown:
-        raise ValueError(
-            f"--config {str(path)!r}: unknown key(s) {', '.join(unknown)}; "
-            f"allowed: {', '.join(allowed)}"
-        )
-    methods = cfg.get("methods")
-    if methods is not None and (
-        not isinstance(methods, list) or not all(isinstance(m, str) for m in methods)
-    ):
-        raise ValueError(
-            f"--config {str(path)!r}: methods must be a list of names, got {methods!r}"
-        )
-    return cfg
+#: The scenario fields that are readings of the paper's open details (SPEC §5).
+READING_FIELDS = ("delay_mode", "nu_pending", "funnel_nominal", "pads", "pg_samples")
+
+
+def reading_text(v) -> str:
+    """A reading's value as text (``true``/``false`` for booleans, as in TOML)."""
+    return ("true" if v else "false") if isinstance(v, bool) else str(v)
+
+
+def readings_line(s: Scenario) -> str:
+    """``delay_mode = fifo, nu_pending = hold, ...``: the readings ``s`` runs under."""
+    return ", ".join(f"{k} = {reading_text(getattr(s, k))}" for k in READING_FIELDS)

@@ -44,9 +44,8 @@ import pyarrow as pa
 import pyarrow.compute as pc
 
 from loopid.algorithms.methods import LEARNING_METHODS, METHODS
-from loopid.experiments.report import READING_FIELDS, reading_text
 from loopid.experiments.results import concat, write_atomic_bytes
-from loopid.experiments.scenarios import SCENARIOS, Scenario
+from loopid.experiments.scenarios import READING_FIELDS, SCENARIOS, Scenario, reading_text
 
 
 class Reading(NamedTuple):
@@ -202,7 +201,7 @@ def _g(x: float) -> str:
 
 def medians(table: pa.Table) -> dict[tuple[str, str], float]:
     """``{(panel, method): median over seeds of the final test cost}`` of one reading."""
-    from loopid.experiments.report import Costs
+    from loopid.experiments.findings import Costs
 
     c = Costs(table)
     return {
@@ -235,9 +234,9 @@ def medians_table(table: pa.Table) -> list[str]:
 
 
 def reading_findings(table: pa.Table, r: Reading, base: dict[str, Scenario]) -> list:
-    """The five findings of SPEC §4.5 (:func:`loopid.experiments.report.findings`) on reading
+    """The five findings of SPEC §4.5 (:func:`loopid.experiments.findings.findings`) on reading
     ``r``'s panels, each holds / does not hold."""
-    from loopid.experiments.report import findings
+    from loopid.experiments.findings import findings
 
     hover = {p for p in r.panels if base[p].task in ("hover", "hover-delay")}
     return findings(_subtable(table, r.id), hover)
@@ -372,7 +371,7 @@ def funnel_prediction_lines(s: Scenario) -> list[str]:
     """``study.md`` lines: each funnel nominal's one-step prediction error along the expert's
     flight (:func:`loopid.systems.funnel_nominal.prediction_errors`: velocity RMS, 10 noisy
     flights), on the whole target and on the circles, next to SPEC §5.2's figures."""
-    from loopid.experiments.runner import setup
+    from loopid.experiments.families.helicopter import setup
     from loopid.systems.funnel_nominal import FUNNEL_NOMINALS, funnel_nominal, prediction_errors
 
     st = setup(s)

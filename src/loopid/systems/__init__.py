@@ -2,8 +2,8 @@
 linear-Gaussian test system, finite MDPs, and any Gymnasium environment (:class:`GymSystem`)."""
 
 from loopid.systems import helicopter, tasks
-from loopid.systems.base import Dynamics
 from loopid.systems.as_gymnasium import HelicopterEnv
+from loopid.systems.base import Dynamics
 from loopid.systems.from_gymnasium import GymSystem, QuadraticCost, quadratic_cost
 from loopid.systems.helicopter import (
     from_error,

@@ -31,6 +31,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from loopid.systems.base import Dynamics
+
 DT = 0.05
 N_STATE = 21
 N_ACTION = 4
@@ -316,3 +318,8 @@ def rollout(x0, dU, noise, *, delay: int = 0) -> jax.Array:
         jnp.asarray(noise.reshape(flat, T, N_NOISE)),
     )
     return X.reshape(*batch, T + 1, N_STATE)
+
+
+#: The helicopter as the plant runs it (:func:`loopid.algorithms.plant.make_plant`): its delayed
+#: step, error coordinates and noise, all of which also take column batches.
+DYNAMICS = Dynamics(step_delayed, to_error, from_error, noise_sequence, N_STATE, N_ACTION, True)

@@ -22,6 +22,8 @@ import numpy as np
 from loopid.systems import helicopter
 
 TASK_NAMES = ("hover", "hover-delay", "funnel")
+#: The tasks that hold one hover target (time-invariant); every other task follows a trajectory.
+HOVER_TASKS = ("hover", "hover-delay")
 #: Weights over [u_prev ×4, du_prev ×4, ned_dot ×3, ned ×3, pqr ×3, q ×3, const ×1].
 HOVER_WEIGHTS = (0.0, 1000.0, 1.0, 1.0, 1.0, 1.0, 0.0)
 FUNNEL_WEIGHTS = (0.0, 1000.0, 0.01, 10.0, 1.0, 10.0, 0.0)
@@ -122,5 +124,10 @@ def make_task(name: str, *, noise_std=None, delay=None, pads: bool = True) -> Ta
         Q=Q,
         R=R,
         x0=target[0],
-        time_varying=name == "funnel",
+        time_varying=not is_hover(name),
     )
+
+
+def is_hover(task: "str | Task") -> bool:
+    """Whether ``task`` (a task or its name) is a hover: the one place that decides it."""
+    return (task if isinstance(task, str) else task.name) in HOVER_TASKS

@@ -23,6 +23,7 @@ Lemma 4.1 once the policies contribute), ``eps_prd_l1``, ``eps_prd_kl``, ``eps_m
 """
 
 from collections.abc import Callable
+from dataclasses import asdict, dataclass, fields, replace
 from functools import lru_cache
 from pathlib import Path
 from typing import NamedTuple
@@ -41,20 +42,33 @@ from loopid.algorithms.mdp_agent import (
     mdp_plant,
     policy_nu,
 )
+from loopid.experiments.config import check_choice, check_int, check_number, read_flat_file
+from loopid.experiments.families.base import Family
 from loopid.systems.mdp import TRAP_WALK, FiniteMDP, random_mdp, trap_mdp
 
-__all__ = ["MDP_METHODS", "MDP_SCENARIOS", "MDPScenario", "mdp_figure", "run_mdp"]
+__all__ = ["FAMILY", "MDP_METHODS", "MDP_SCENARIOS", "MDPScenario", "mdp_figure", "run_mdp"]
 
 MDP_METHODS = ("dagger", "batch", "abbeel")
 _FRACTIONS = {"dagger": "dagger-t", "batch": "batch-t", "abbeel": "abbeel"}
 
 
-class MDPScenario(NamedTuple):
-    """One finite-MDP experiment. ``system``: ``"random"`` or ``"trap"``; ``model``:
-    ``"counts"`` or ``"hinge"``; ``nu``: ``"uniform"`` or ``"base"`` (D_{μ,π_ε} of the walk
-    policy with action noise ``epsilon``); ``alpha``: count pseudo-weight; ``eta``/``margin``:
-    the classifier's step and prior margin; ``horizon``: rollout length (the geometric draw is
-    truncated there: bias ≤ γ^horizon)."""
+@dataclass(frozen=True)
+class MDPScenario:
+    """One finite-MDP experiment (frozen, hashable; checked when built).
+
+    Attributes:
+      name: the scenario name.
+      system: ``random`` (a random MDP: ``n_states``, ``n_actions``, Dirichlet ``concentration``
+        rows, drawn from ``jax.random.key(mdp_seed)``) or ``trap``
+        (:func:`loopid.systems.mdp.trap_mdp` of ``length`` with ``slip``).
+      gamma: the discount.
+      nu: ``uniform`` over state-action pairs, or ``base``: D_{μ,π_ε} of the walk policy with
+        action noise ``epsilon``.
+      model: ``counts`` (count estimator, pseudo-weight ``alpha``) or ``hinge`` (deterministic
+        classifier: step ``eta``, prior margin ``margin``).
+      iterations, samples, seeds: N, m per iteration, and the seed count.
+      horizon: rollout length (the geometric draw is truncated there: bias <= γ^horizon).
+    """
 
     name: str
     system: str = "random"
@@ -76,20 +90,31 @@ class MDPScenario(NamedTuple):
     horizon: int = 150
     seeds: int = 8
 
+    def __post_init__(self) -> None:
+        for name in ("iterations", "samples", "seeds", "horizon", "n_states", "n_actions"):
+            check_int(name, getattr(self, name))
+        check_int("length", self.length)
+        check_int("mdp_seed", self.mdp_seed, 0)
+        check_choice("system", self.system, ("random", "trap"))
+        check_choice("nu", self.nu, ("uniform", "base"))
+        check_choice("model", self.model, ("counts", "hinge"))
+        check_number("gamma", self.gamma, 0.0, 1.0 - 1e-12)
+        check_number("epsilon", self.epsilon, 0.0, 1.0)
+        check_number("slip", self.slip, 0.0, 1.0)
+        for name in ("concentration", "alpha", "eta"):
+            check_number(name, getattr(self, name), 0.0, open_low=True)
+        check_number("margin", self.margin, 0.0)
+
     def replace(self, **changes) -> "MDPScenario":
-        """A copy with ``changes``; unknown fields and non-positive sizes raise ValueError."""
-        unknown = sorted(set(changes) - set(self._fields))
+        """A copy with ``changes``; unknown fields and bad values raise ValueError."""
+        unknown = sorted(set(changes) - {f.name for f in fields(self)})
         if unknown:
             raise ValueError(f"unknown MDP scenario field(s): {', '.join(unknown)}")
-        for name in ("iterations", "samples", "seeds", "horizon"):
-            v = changes.get(name, getattr(self, name))
-            if isinstance(v, bool) or not isinstance(v, int) or v < 1:
-                raise ValueError(f"{name} must be an integer >= 1, got {v!r}")
-        return self._replace(**changes)
+        return replace(self, **changes)
 
     def to_dict(self) -> dict:
         """The fields as a plain dict (for config.toml)."""
-        return self._asdict()
+        return asdict(self)
 
 
 MDP_SCENARIOS = {
@@ -267,10 +292,11 @@ def mdp_figure(table, path) -> Path:
     return path
 
 
-def mdp_report(table) -> str:
-    """A short Markdown report of an MDP run: per scenario and method, the final mean J of the
-    learnt policy, of the best policy so far, J* and the bound (means over seeds)."""
-    lines = ["# loopid finite-MDP report", ""]
+def report(table, configs=None) -> list[str]:
+    """``report.md``'s section of an MDP run: per scenario and method, the final mean J of the
+    learnt policy, of the best policy so far, J* and the bound (means over seeds), and whether
+    J(best) <= bound held on every row."""
+    lines = ["## Exact quantities", ""]
     lines += [
         "Exact quantities (no sampling in the evaluation): J_μ(π) of the learnt policy,",
         "J of the best policy so far, the optimum J* and the right-hand side of the",
@@ -299,4 +325,22 @@ def mdp_report(table) -> str:
                 + " | ".join(f"{v:.4g}" for v in vals)
                 + f" | {'yes' if holds else 'NO'} |"
             )
-    return "\n".join(lines) + "\n"
+    return [*lines, ""]
+
+
+def _build(name: str, changes: dict) -> MDPScenario:
+    return _scenario(name).replace(**changes)
+
+
+FAMILY = Family(
+    name="mdp",
+    config=MDPScenario,
+    methods=MDP_METHODS,
+    scenarios=MDP_SCENARIOS,
+    default_methods=lambda s: MDP_METHODS,
+    build=_build,
+    read_file=lambda path: read_flat_file(path, [f.name for f in fields(MDPScenario)]),
+    run=lambda method, s, seeds=None, progress=None: run_mdp(method, s, seeds, progress),
+    figure=lambda table, path, configs: mdp_figure(table, path),
+    report=report,
+)

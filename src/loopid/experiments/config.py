@@ -1,0 +1,112 @@
+"""What every family's config shares: value checks with one-line errors, reading a ``--config``
+TOML file, ``--set key=value`` and hashable (frozen) TOML values.
+
+Every error is a ``ValueError`` whose one line names the bad value and what is allowed.
+"""
+
+import math
+import tomllib
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+
+def seed_list(config) -> np.ndarray:
+    """A config's seeds as an integer array: ``range(seeds)`` for a count, else the tuple."""
+    seeds = config.seeds
+    if isinstance(seeds, int | np.integer) and not isinstance(seeds, bool):
+        return np.arange(int(seeds))
+    return np.asarray(seeds, dtype=np.int64)
+
+
+def check_int(name: str, v, minimum: int = 1) -> None:
+    """``ValueError`` unless ``v`` is an integer (not a bool) ``>= minimum``."""
+    if isinstance(v, bool) or not isinstance(v, int) or v < minimum:
+        raise ValueError(f"{name} must be an integer >= {minimum}, got {v!r}")
+
+
+def check_number(name: str, v, low: float, high: float = math.inf, *, open_low=False) -> None:
+    """``ValueError`` unless ``v`` is a finite number in ``[low, high]`` (``(low, high]``)."""
+    ok = isinstance(v, int | float) and not isinstance(v, bool) and math.isfinite(v)
+    ok = ok and (v > low if open_low else v >= low) and v <= high
+    if not ok:
+        bound = f"({low}, {high}]" if open_low else f"[{low}, {high}]"
+        raise ValueError(f"{name} must be a number in {bound}, got {v!r}")
+
+
+def check_choice(name: str, v, allowed: Sequence[str]) -> None:
+    """``ValueError`` unless ``v`` is one of ``allowed``."""
+    if not isinstance(v, str) or v not in allowed:
+        raise ValueError(f"{name} must be one of {', '.join(allowed)}, got {v!r}")
+
+
+def read_toml(path, what: str = "--config") -> dict:
+    """A TOML file as a dict; one-line ``ValueError`` for an unreadable file or bad TOML."""
+    path = Path(path)
+    try:
+        text = path.read_text(encoding="utf-8")
+    except OSError as e:
+        raise ValueError(f"{what} {str(path)!r}: cannot read it ({e.strerror})") from None
+    try:
+        return tomllib.loads(text)
+    except tomllib.TOMLDecodeError as e:
+        raise ValueError(f"{what} {str(path)!r}: not valid TOML ({e})") from None
+
+
+def read_flat_file(path, allowed: Sequence[str]) -> tuple[dict, list[str] | None]:
+    """A ``--config`` TOML of flat keys, each a config field in ``allowed`` or ``methods`` (a
+    list of method names). Returns ``(fields, methods or None)``; the values are validated when
+    the config is built."""
+    cfg = read_toml(path)
+    unknown = sorted(set(cfg) - {*allowed, "methods"})
+    if unknown:
+        raise ValueError(
+            f"--config {str(path)!r}: unknown key(s) {', '.join(unknown)}; "
+            f"allowed: {', '.join((*allowed, 'methods'))}"
+        )
+    methods = cfg.pop("methods", None)
+    if methods is not None and (
+        not isinstance(methods, list) or not all(isinstance(m, str) for m in methods)
+    ):
+        raise ValueError(
+            f"--config {str(path)!r}: methods must be a list of names, got {methods!r}"
+        )
+    return cfg, methods
+
+
+def parse_assignment(text: str) -> tuple[str, Any]:
+    """``--set key=value``: the value is read as a TOML value (``3``, ``0.5``, ``true``,
+    ``[1, 2]``, ``"text"``); anything that is not TOML is taken as a bare string
+    (``--set delay_mode=latency``)."""
+    key, sep, value = text.partition("=")
+    key = key.strip()
+    if not sep or not key:
+        raise ValueError(f"--set takes key=value, got {text!r}")
+    try:
+        return key, tomllib.loads(f"v = {value.strip()}")["v"]
+    except tomllib.TOMLDecodeError:
+        return key, value.strip()
+
+
+class Table(tuple):
+    """A frozen TOML table: a tuple of ``(key, value)`` pairs (hashable, unlike a dict)."""
+
+
+def freeze(v):
+    """A TOML value made hashable: lists become tuples, tables :class:`Table` s."""
+    if isinstance(v, dict):
+        return Table((k, freeze(x)) for k, x in v.items())
+    if isinstance(v, list | tuple) and not isinstance(v, Table):
+        return tuple(freeze(x) for x in v)
+    return v
+
+
+def thaw(v):
+    """The inverse of :func:`freeze`: tuples become lists, :class:`Table` s dicts."""
+    if isinstance(v, Table):
+        return {k: thaw(x) for k, x in v}
+    if isinstance(v, tuple):
+        return [thaw(x) for x in v]
+    return v

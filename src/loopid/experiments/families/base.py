@@ -1,0 +1,73 @@
+"""What a kind of system gives the experiment pipeline: the :class:`Family` record.
+
+A *family* is one kind of real system (the helicopter, finite MDPs, any Gymnasium env). The
+pipeline above it (:mod:`loopid.experiments.execute`: cells, resume, atomic files, workers, Ray,
+progress, ``report.md``, ``loopid plot``, the command line) knows nothing else about it. A family
+module defines one frozen config dataclass and one :class:`Family`; the registry
+(:mod:`loopid.experiments.families`) maps scenario names to families.
+
+Every config dataclass has the fields ``name``, ``iterations``, ``samples`` and ``seeds`` (a
+count, or for families that accept one, a tuple of seeds), validates itself when it is built
+(``ValueError`` naming the bad field), and offers ``replace(**changes)`` and ``to_dict()`` (plain
+TOML values; ``None`` left out). The helpers they share (checks, reading a ``--config`` file,
+``--set key=value``) are in :mod:`loopid.experiments.config`.
+"""
+
+from collections.abc import Callable, Mapping, Sequence
+from dataclasses import dataclass, fields
+from pathlib import Path
+from typing import Any
+
+import pyarrow as pa
+
+from loopid.algorithms.loop import Row, Trace
+
+#: ``progress(n, row)`` after iteration n of a cell.
+Progress = Callable[[int, Row], None]
+
+
+@dataclass(frozen=True)
+class Family:
+    """One kind of system, as the pipeline sees it.
+
+    Attributes:
+      name: the family's name (``helicopter``, ``mdp``, ``gym``), recorded in ``config.toml``.
+      config: the frozen config dataclass of its scenarios.
+      methods: every method it offers.
+      scenarios: the named scenarios it ships (name -> config); may be empty (``gym`` is
+        always built from a file).
+      default_methods: ``default_methods(config) -> methods`` run when none are chosen.
+      build: ``build(name, fields) -> config``: the named scenario (or, for a family without
+        shipped scenarios, a new one) with ``fields`` set; ``ValueError`` on a bad field.
+      read_file: ``read_file(path) -> (fields, methods or None)``: a ``--config`` TOML file.
+      run: ``run(method, config, seeds, progress) -> Trace``: one cell, every seed at once.
+      figure: ``figure(table, path, configs)``: the run's ``figure.png``.
+      report: ``report(table, configs) -> lines``: the family's sections of ``report.md``
+        (Markdown lines), after the common header, configuration and wall time.
+      check: ``check(config)``: checks that need the system itself (sizes against a Gymnasium
+        env, say), run before anything is written; None when the config checks itself.
+    """
+
+    name: str
+    config: type
+    methods: tuple[str, ...]
+    scenarios: Mapping[str, Any]
+    default_methods: Callable[[Any], Sequence[str]]
+    build: Callable[[str, dict], Any]
+    read_file: Callable[[Path], tuple[dict, list[str] | None]]
+    run: Callable[..., Trace]
+    figure: Callable[[pa.Table, Path, Mapping[str, Any]], None]
+    report: Callable[[pa.Table, Mapping[str, Any]], list[str]]
+    check: Callable[[Any], None] | None = None
+
+    def field_names(self) -> tuple[str, ...]:
+        """The config dataclass's field names."""
+        return tuple(f.name for f in fields(self.config))
+
+    def check_methods(self, config, methods: Sequence[str]) -> None:
+        """``ValueError`` naming the first method this family does not offer."""
+        for m in methods:
+            if m not in self.methods:
+                raise ValueError(
+                    f"unknown method {m!r} for {config.name}; choose from {', '.join(self.methods)}"
+                )

@@ -1,0 +1,441 @@
+"""The Gymnasium family: any Gymnasium env with Box spaces as the real system, from a TOML file.
+
+``loopid run gym --config FILE`` (``examples/pendulum.toml`` is a complete file). The file has
+five tables; each key is a field of :class:`GymScenario` (the field's name in brackets where it
+differs)::
+
+    [env]          id [env_id] (required), kwargs [env_kwargs], reset_options, observe,
+                   horizon, num_envs, stop_norm, vectorization ("sync" | "async")
+    [cost]         target, Q, R (required; Q, R full matrices, diagonals or scalars over the
+                   observed entries and the actions), action_op, test [test_cost]
+                   ("quadratic" | "reward" | "module:function"), termination, cap [cost_cap]
+    [exploration]  ν: exactly one of gain (K [m, n_obs] or [m, n_obs + 1], a = a_op − K Δx),
+                   policy ("module:function", obs -> action), nominal (open-loop actions
+                   [T, m]); action_std (Gaussian action noise)
+    [model]        A, B (nominal, default A = I, B = 0), time_varying, lambda [ftrl_lambda]
+    [run]          methods (dagger | batch | abbeel), iterations, samples, seeds (a count or a
+                   list), test_trajectories, dagger_fraction
+
+The common options (``--seeds``, ``--iterations``, ``--samples``, ``--test-trajectories``,
+``--methods``) and ``--set FIELD=VALUE`` override the file, as for every family. Every problem
+(unknown or missing key, wrong size, Discrete space, unknown env id) raises ``ValueError`` with
+one line naming the value, before anything is written (:func:`check` builds the env once).
+
+Methods: ``dagger`` (p_n = ``dagger_fraction``), ``batch`` (p_n = 0), ``abbeel`` (ν's data at
+n = 2, then the policy's), run by :func:`loopid.algorithms.host_loop.run_learning_host`. Figure:
+mean test cost against samples, ± one standard error, per method; report: the final costs.
+"""
+
+import importlib
+from dataclasses import dataclass, fields, replace
+from functools import lru_cache
+from typing import Any, NamedTuple
+
+import numpy as np
+import pyarrow as pa
+
+from loopid.algorithms.host_loop import (
+    Exploration,
+    gym_agent,
+    make_host_cell,
+    nominal_model,
+    run_learning_host,
+)
+from loopid.algorithms.loop import Trace
+from loopid.algorithms.methods import policy_fractions
+from loopid.experiments.config import (
+    Table,
+    check_choice,
+    check_int,
+    check_number,
+    freeze,
+    read_toml,
+    seed_list,
+    thaw,
+)
+from loopid.experiments.families.base import Family, Progress
+from loopid.experiments.report import final_cost_sections
+from loopid.systems.from_gymnasium import CallablePolicy, GymSystem, OpenLoopPolicy, quadratic_cost
+
+METHODS = ("dagger", "batch", "abbeel")
+#: The helicopter method whose p_n schedule each gym method follows.
+_FRACTIONS = {"dagger": "dagger-t", "batch": "batch-t", "abbeel": "abbeel"}
+_TABLE_FIELDS = ("env_kwargs", "reset_options")
+_NO_TABLE = Table()
+
+
+@dataclass(frozen=True)
+class GymScenario:
+    """One Gymnasium experiment (module docstring for the file format; frozen and hashable:
+    lists are kept as tuples and tables as tuples of pairs, :meth:`to_dict` gives them back).
+
+    Attributes:
+      name: the scenario name (``gym``).
+      env_id: the Gymnasium id; env_kwargs: ``gymnasium.make`` keywords; reset_options: the
+        ``options`` of every reset; observe: the observation entries the model sees (default
+        all); horizon: steps per episode (default the env's limit); num_envs, vectorization:
+        the vector env; stop_norm: training episodes restart when ``‖[Δx; Δu]‖ > stop_norm``.
+      target, Q, R, action_op: the quadratic cost the controller is designed for (on the
+        observed entries and ``a − action_op``); test_cost: the test cost (``quadratic``,
+        ``reward``: the env's own, negated, or ``module:function``); termination: added when an
+        episode ends by ``terminated``; cost_cap: a test episode's cost cap.
+      gain, policy, nominal, action_std: ν (exactly one of the first three) and its noise.
+      A, B, time_varying, ftrl_lambda: the nominal model and the FTRL regulariser.
+      iterations, samples, seeds, test_trajectories, dagger_fraction: the protocol (``seeds``: a
+        count or a tuple of seeds).
+    """
+
+    env_id: str
+    target: Any
+    Q: Any
+    R: Any
+    name: str = "gym"
+    env_kwargs: Any = _NO_TABLE
+    reset_options: Any = _NO_TABLE
+    observe: Any = None
+    horizon: int | None = None
+    num_envs: int = 8
+    stop_norm: float | None = None
+    vectorization: str = "sync"
+    action_op: Any = None
+    test_cost: str = "quadratic"
+    termination: float = 0.0
+    cost_cap: float = 1e8
+    gain: Any = None
+    policy: str | None = None
+    nominal: Any = None
+    action_std: float = 0.0
+    A: Any = None
+    B: Any = None
+    time_varying: bool = False
+    ftrl_lambda: float = 1e-3
+    iterations: int = 10
+    samples: int = 200
+    seeds: Any = 5
+    test_trajectories: int = 10
+    dagger_fraction: float = 0.5
+
+    def __post_init__(self) -> None:
+        for f in fields(self):  # TOML lists and tables, kept hashable
+            v = getattr(self, f.name)
+            if isinstance(v, list | dict | tuple):
+                object.__setattr__(self, f.name, freeze(v))
+        validate(self)
+
+    def replace(self, **changes) -> "GymScenario":
+        """A copy with ``changes``; unknown fields and bad values raise ``ValueError``."""
+        unknown = sorted(set(changes) - set(FIELDS))
+        if unknown:
+            raise ValueError(f"unknown gym scenario field(s): {', '.join(unknown)}")
+        return replace(self, **changes)
+
+    def to_dict(self) -> dict:
+        """The fields as plain TOML values (lists, tables), ``None`` left out."""
+        out = {}
+        for k, v in ((f.name, getattr(self, f.name)) for f in fields(self)):
+            if v is None or (k in _TABLE_FIELDS and not v):
+                continue
+            out[k] = thaw(v)
+        return out
+
+
+FIELDS = tuple(f.name for f in fields(GymScenario))
+
+
+def validate(s: GymScenario) -> None:
+    """Raise ``ValueError`` naming the first bad field (checks that need no env)."""
+    if not isinstance(s.env_id, str) or not s.env_id:
+        raise ValueError(f"env_id must be a Gymnasium id, got {s.env_id!r}")
+    for name in _TABLE_FIELDS:
+        v = getattr(s, name)
+        if not (isinstance(v, Table) or v == ()):
+            raise ValueError(f"{name} must be a table, got {thaw(v)!r}")
+    check_int("num_envs", s.num_envs)
+    if s.horizon is not None:
+        check_int("horizon", s.horizon)
+    if s.stop_norm is not None:
+        check_number("stop_norm", s.stop_norm, 0.0, open_low=True)
+    check_choice("vectorization", s.vectorization, ("sync", "async"))
+    if s.test_cost not in ("quadratic", "reward") and ":" not in str(s.test_cost):
+        raise ValueError(
+            f"test_cost must be 'quadratic', 'reward' or 'module:function', got {s.test_cost!r}"
+        )
+    check_number("termination", s.termination, -np.inf)
+    check_number("cost_cap", s.cost_cap, 0.0, open_low=True)
+    kinds = [k for k in ("gain", "policy", "nominal") if getattr(s, k) is not None]
+    if len(kinds) != 1:
+        raise ValueError(f"exploration needs exactly one of gain, policy, nominal, got {kinds}")
+    check_number("action_std", s.action_std, 0.0)
+    if not isinstance(s.time_varying, bool):
+        raise ValueError(f"time_varying must be true or false, got {s.time_varying!r}")
+    check_number("ftrl_lambda", s.ftrl_lambda, 0.0)
+    for name in ("iterations", "samples", "test_trajectories"):
+        check_int(name, getattr(s, name))
+    seeds = s.seeds
+    if isinstance(seeds, tuple):
+        if not seeds or not all(isinstance(x, int) and not isinstance(x, bool) and x >= 0
+                                for x in seeds):  # fmt: skip
+            raise ValueError(f"seeds must be a count or a list of integers >= 0, got {seeds!r}")
+    else:
+        check_int("seeds", seeds)
+    check_number("dagger_fraction", s.dagger_fraction, 0.0, 1.0)
+
+
+#: TOML table -> {key: field} (the file format of the module docstring).
+TABLES = {
+    "env": {
+        "id": "env_id", "kwargs": "env_kwargs", "reset_options": "reset_options",
+        "observe": "observe", "horizon": "horizon", "num_envs": "num_envs",
+        "stop_norm": "stop_norm", "vectorization": "vectorization",
+    },
+    "cost": {
+        "target": "target", "Q": "Q", "R": "R", "action_op": "action_op", "test": "test_cost",
+        "termination": "termination", "cap": "cost_cap",
+    },
+    "exploration": {
+        "gain": "gain", "policy": "policy", "nominal": "nominal", "action_std": "action_std",
+    },
+    "model": {"A": "A", "B": "B", "time_varying": "time_varying", "lambda": "ftrl_lambda"},
+    "run": {
+        "methods": None, "iterations": "iterations", "samples": "samples", "seeds": "seeds",
+        "test_trajectories": "test_trajectories", "dagger_fraction": "dagger_fraction",
+    },
+}  # fmt: skip
+_REQUIRED = {"env": ("id",), "cost": ("target", "Q", "R"), "exploration": ()}
+
+
+def read_file(path) -> tuple[dict, list[str] | None]:
+    """A gym TOML file as ``(fields, methods or None)``; one-line ``ValueError`` naming an
+    unknown or missing table or key (values are checked when the scenario is built)."""
+    raw = read_toml(path)
+    where = f"--config {str(path)!r}"
+    out: dict = {}
+    methods = None
+    for table, given in raw.items():
+        if table not in TABLES:
+            raise ValueError(f"{where}: unknown table [{table}]; allowed: {', '.join(TABLES)}")
+        if not isinstance(given, dict):
+            raise ValueError(f"{where}: {table} must be a table, got {given!r}")
+        for key, value in given.items():
+            if key not in TABLES[table]:
+                raise ValueError(
+                    f"{where}: unknown key {table}.{key}; allowed: {', '.join(TABLES[table])}"
+                )
+            if TABLES[table][key] is None:
+                methods = value
+            else:
+                out[TABLES[table][key]] = value
+    for table, keys in _REQUIRED.items():
+        if table not in raw:
+            raise ValueError(f"{where}: missing table [{table}]")
+        for key in keys:
+            if key not in raw[table]:
+                raise ValueError(f"{where}: missing key {table}.{key}")
+    if methods is not None and (
+        not isinstance(methods, list) or not methods or not all(isinstance(m, str) for m in methods)
+    ):
+        raise ValueError(f"{where}: run.methods must be a non-empty list, got {methods!r}")
+    return out, methods
+
+
+def build(name: str, changes: dict) -> GymScenario:
+    """A :class:`GymScenario` from a file's fields (and the command line's changes)."""
+    missing = [k for k in ("env_id", "target", "Q", "R") if k not in changes]
+    if missing:
+        raise ValueError(
+            f"loopid run {name} needs --config FILE with [env] id and [cost] target, Q, R "
+            "(see examples/pendulum.toml)"
+        )
+    unknown = sorted(set(changes) - set(FIELDS))
+    if unknown:
+        raise ValueError(f"unknown gym scenario field(s): {', '.join(unknown)}")
+    return GymScenario(**{"name": name, **changes})
+
+
+# ----------------------------------------------------------------------------- the system
+def _import(name: str, what: str):
+    mod, _, attr = name.partition(":")
+    try:
+        obj = getattr(importlib.import_module(mod), attr)
+    except (ImportError, AttributeError, ValueError):
+        raise ValueError(f"{what} = {name!r} is not an importable 'module:function'") from None
+    if not callable(obj):
+        raise ValueError(f"{what} = {name!r} is not callable")
+    return obj
+
+
+def _checked(what: str, f, *args, **kwargs):
+    """Call ``f``; prefix a ValueError's one line with the field it concerns."""
+    try:
+        return f(*args, **kwargs)
+    except ValueError as err:
+        raise ValueError(f"[{what}] {str(err).splitlines()[0]}") from None
+
+
+def make_system(s: GymScenario) -> GymSystem:
+    """The scenario's env as a :class:`loopid.systems.from_gymnasium.GymSystem` (close it)."""
+    return GymSystem(
+        s.env_id, target=thaw(s.target), env_kwargs=thaw(s.env_kwargs),
+        observe=thaw(s.observe), a_op=thaw(s.action_op), horizon=s.horizon,
+        num_envs=s.num_envs, reset_options=thaw(s.reset_options),
+        vectorization=s.vectorization, stop_norm=s.stop_norm,
+    )  # fmt: skip
+
+
+class Shape(NamedTuple):
+    """What the compiled learner depends on besides the scenario: the system's sizes and
+    coordinates (hashable)."""
+
+    n: int
+    n_obs: int
+    m: int
+    horizon: int
+    target: tuple
+    a_op: tuple
+
+
+def _shape(system: GymSystem) -> Shape:
+    return Shape(system.n, system.n_obs, system.m, system.horizon,
+                 tuple(np.asarray(system.target).tolist()),
+                 tuple(np.asarray(system.a_op).tolist()))  # fmt: skip
+
+
+def _cost(s: GymScenario, shape: Shape):
+    sizes = (("Q", shape.n_obs, "observed entries"), ("R", shape.m, "actions"))
+    for name, size, what in sizes:
+        M = np.asarray(thaw(getattr(s, name)), dtype=np.float64)
+        if M.ndim >= 1 and M.shape[0] != size:
+            raise ValueError(
+                f"[cost] {name} must be {size}x{size} or {size} diagonal entries "
+                f"({s.env_id} has {size} {what}), got shape {M.shape}"
+            )
+    return _checked("cost", quadratic_cost, np.asarray(shape.target), thaw(s.Q), thaw(s.R),
+                    np.asarray(shape.a_op))  # fmt: skip
+
+
+@lru_cache(maxsize=4)
+def _learner(s: GymScenario, shape: Shape):
+    """The agent and its compiled host cell (kept: every method of a run shares them)."""
+    cost = _cost(s, shape)
+    model = _checked("model", nominal_model, shape, thaw(s.A), thaw(s.B),
+                     time_varying=s.time_varying)  # fmt: skip
+    agent = gym_agent(shape, cost, model, lam=s.ftrl_lambda)
+    return agent, make_host_cell(agent, samples=s.samples)
+
+
+def _exploration(s: GymScenario, system: GymSystem) -> Exploration:
+    if s.gain is not None:
+        policy = _checked("exploration.gain", system.linear_policy, thaw(s.gain))
+    elif s.policy is not None:
+        policy = CallablePolicy(_import(s.policy, "exploration.policy"), system.m)
+    else:
+        U = np.asarray(thaw(s.nominal), dtype=np.float64)
+        if U.ndim != 2 or U.shape[1] != system.m or U.shape[0] < 1:
+            raise ValueError(f"[exploration] nominal must be [T, {system.m}], got shape {U.shape}")
+        policy = OpenLoopPolicy(U)
+    return Exploration(policy, float(s.action_std))
+
+
+def _test_cost(s: GymScenario, shape: Shape):
+    if s.test_cost == "quadratic":
+        return _cost(s, shape)
+    if s.test_cost == "reward":
+        return "reward"
+    return _import(s.test_cost, "cost.test")
+
+
+def _parts(s: GymScenario, system: GymSystem):
+    try:
+        shape = _shape(system)
+        agent, cell = _learner(s, shape)
+        return agent, cell, _exploration(s, system), _test_cost(s, shape)
+    except (ValueError, TypeError) as err:
+        raise ValueError(str(err).splitlines()[0]) from None
+
+
+def check(s: GymScenario) -> None:
+    """Build the env and every part once, so that a size that does not fit the env is refused
+    before anything is written."""
+    system = make_system(s)
+    try:
+        _parts(s, system)
+    finally:
+        system.close()
+
+
+def run(method: str, s: GymScenario, seeds=None, progress: Progress | None = None) -> Trace:
+    """Run ``method`` (:data:`METHODS`) on every seed (default :func:`seed_list`)."""
+    if method not in METHODS:
+        raise ValueError(f"unknown gym method {method!r}; choose from {', '.join(METHODS)}")
+    seeds = seed_list(s) if seeds is None else np.asarray(seeds)
+    system = make_system(s)
+    try:
+        agent, cell, nu, test_cost = _parts(s, system)
+        fractions = policy_fractions(
+            _FRACTIONS[method], s.iterations, dagger_fraction=s.dagger_fraction
+        )
+        return run_learning_host(
+            system, agent, nu, fractions, [int(x) for x in seeds], samples=s.samples,
+            n_test=s.test_trajectories, cost=test_cost, termination_cost=s.termination,
+            cost_cap=s.cost_cap, progress=progress, cell=cell,
+        )  # fmt: skip
+    finally:
+        system.close()
+
+
+def figure(table: pa.Table, path, configs) -> None:
+    """Mean test cost (± one standard error over seeds) against samples, one line per method,
+    log cost axis; written to ``path``."""
+    import io
+
+    import matplotlib
+
+    matplotlib.use("Agg", force=True)
+    import matplotlib.pyplot as plt
+
+    from loopid.experiments.results import write_atomic_bytes
+
+    title = ", ".join(f"{s.env_id}: test cost" for s in configs.values())
+    df = {name: np.asarray(table.column(name).to_pylist()) for name in table.column_names}
+    fig, ax = plt.subplots(figsize=(6, 4))
+    for k, method in enumerate(dict.fromkeys(df["method"].tolist())):
+        sel = df["method"] == method
+        samples = np.unique(df["samples"][sel])
+        costs = [df["test_cost"][sel & (df["samples"] == x)] for x in samples]
+        mean = np.array([c.mean() for c in costs])
+        se = np.array([c.std(ddof=1) / np.sqrt(c.size) if c.size > 1 else 0.0 for c in costs])
+        style = ("-", "--", ":")[k % 3]  # dashes keep coinciding curves visible
+        ax.plot(samples, mean, style, marker="o", ms=3, label=method)
+        ax.fill_between(samples, np.maximum(mean - se, 1e-12), mean + se, alpha=0.25)
+    ax.set_yscale("log")
+    ax.set_xlabel("samples collected")
+    ax.set_ylabel("mean test cost")
+    ax.set_title(title)
+    ax.legend()
+    fig.tight_layout()
+    buf = io.BytesIO()
+    fig.savefig(buf, format="png", dpi=120)
+    plt.close(fig)
+    write_atomic_bytes(buf.getvalue(), path)
+
+
+def report(table: pa.Table, configs) -> list[str]:
+    """The final costs per method, under the env's id."""
+    notes = {name: f"Env: `{s.env_id}`, horizon {s.horizon or 'the env limit'}, test cost "
+             f"{s.test_cost}." for name, s in configs.items()}  # fmt: skip
+    return final_cost_sections(table, notes)
+
+
+FAMILY = Family(
+    name="gym",
+    config=GymScenario,
+    methods=METHODS,
+    scenarios={},
+    default_methods=lambda s: ("dagger", "batch"),
+    build=build,
+    read_file=read_file,
+    run=run,
+    figure=figure,
+    report=report,
+    check=check,
+)

@@ -1,0 +1,204 @@
+"""The helicopter family: the paper's Figure 2 (SPEC §3-§4) through the one pipeline.
+
+Config: :class:`loopid.experiments.scenarios.Scenario` (the packaged panels ``hover``,
+``hover-delay`` and ``funnel``, every protocol setting a field). Methods: the paper's nine,
+:data:`loopid.algorithms.methods.METHODS`.
+
+For a scenario this module builds the plant (the JAX helicopter under the task:
+:func:`helicopter_plant`), the linearised expert L, the initial model (:func:`nominal_model`),
+the model-based agent (linear offset model, FTRL, LQR) and the exploration distributions, then
+runs a method on all seeds at once (:mod:`loopid.algorithms.loop`). Figure: the paper's Figure 2
+(:mod:`loopid.experiments.plots`); report: the final costs with each panel's readings of
+SPEC §5, and the paper's five findings (:mod:`loopid.experiments.findings`).
+
+Caching: the setup, the agent, the compiled cell and the test-noise program are kept in bounded
+caches keyed on :func:`program_key` (the scenario itself with the fields that cannot change a
+compiled program, its name and seed count, set to fixed values), so every method of a run shares
+one compilation and renamed copies of a panel (the readings study) share it too.
+"""
+
+from functools import lru_cache
+from typing import NamedTuple
+
+import jax
+import numpy as np
+
+from loopid.algorithms import methods as M
+from loopid.algorithms.expert import expert_gains
+from loopid.algorithms.loop import (
+    Agent,
+    Trace,
+    make_cell,
+    noise_program,
+    run_fixed_policy,
+    run_learning,
+    seed_keys,
+)
+from loopid.algorithms.model_based import linear_agent
+from loopid.algorithms.plant import Plant, make_plant
+from loopid.algorithms.policy_gradient import run_policy_gradient
+from loopid.experiments.config import read_flat_file
+from loopid.experiments.families.base import Family, Progress
+from loopid.experiments.findings import findings_section
+from loopid.experiments.report import final_cost_sections
+from loopid.experiments.scenarios import FIELDS, SCENARIOS, Scenario, readings_line, scenario
+from loopid.exploration import NU_KINDS, make_nu
+from loopid.learners import ftrl_least_squares
+from loopid.models.linear_offset import LinearOffsetModel, hover_nominal
+from loopid.systems import helicopter
+from loopid.systems.funnel_nominal import funnel_nominal
+from loopid.systems.tasks import Task, is_hover, make_task
+
+
+def helicopter_plant(task: Task, **options) -> Plant:
+    """The helicopter of SPEC §3 under ``task`` as the loop's plant (``options``: those of
+    :func:`loopid.algorithms.plant.make_plant`)."""
+    return make_plant(task, helicopter.DYNAMICS, **options)
+
+
+def nominal_model(plant: Plant, funnel: str = "spec") -> LinearOffsetModel:
+    """The initial model every method starts from (SPEC §4.2).
+
+    Hover tasks: A = I, B adds Δu into u_prev and du_prev (the paper's hover model). The funnel:
+    the nominal of the reading ``funnel`` (SPEC §5.2,
+    :func:`loopid.systems.funnel_nominal.funnel_nominal`; ``spec``: the true simulator
+    linearised about hover trim, the same at every step, plus the target's own motion
+    ``−(x*_{t+1} ⊖ x*_t)``).
+    """
+    if is_hover(plant.task):
+        return hover_nominal(helicopter.N_STATE, helicopter.N_ACTION)
+    return funnel_nominal(funnel, plant.task)
+
+
+class Setup(NamedTuple):
+    """What a scenario's methods share: the plant, the expert's gains, the nominal model."""
+
+    plant: Plant
+    K_expert: jax.Array
+    nominal: LinearOffsetModel
+
+
+def program_key(s: Scenario) -> Scenario:
+    """The cache key of ``s``: the scenario with its name and seed count fixed (neither changes
+    a compiled program: the seeds are an argument, vmapped)."""
+    return s.replace(name="program", seeds=1)
+
+
+@lru_cache(maxsize=8)
+def _setup(key: Scenario) -> Setup:
+    task = make_task(key.task, noise_std=key.noise_std, delay=key.delay, pads=key.pads)
+    plant = helicopter_plant(
+        task, stop_norm=key.stop_norm, nu_pending=key.nu_pending, cost_cap=key.cost_cap,
+        delay_mode=key.delay_mode,
+    )  # fmt: skip
+    return Setup(plant, expert_gains(task), nominal_model(plant, key.funnel_nominal))
+
+
+def setup(s: Scenario) -> Setup:
+    """The shared :class:`Setup` of a scenario (cached: the expert is computed once)."""
+    return _setup(program_key(s))
+
+
+@lru_cache(maxsize=8)
+def _agent(key: Scenario) -> Agent:
+    st = _setup(key)
+    task = st.plant.task
+    return linear_agent(st.nominal, ftrl_least_squares(key.ftrl_lambda), task.Q, task.R,
+                        st.plant.horizon)  # fmt: skip
+
+
+def agent(s: Scenario) -> Agent:
+    """The model-based agent of scenario ``s`` (linear offset model, FTRL, LQR)."""
+    return _agent(program_key(s))
+
+
+@lru_cache(maxsize=8)
+def _cell(key: Scenario):
+    st = _setup(key)
+    nus = [
+        make_nu(
+            kind, st.plant, st.K_expert, state_var=key.nu_state_var, action_var=key.nu_action_var,
+            expert_action_var=key.expert_action_var,
+        )
+        for kind in NU_KINDS
+    ]  # fmt: skip
+    cell = make_cell(
+        st.plant, _agent(key), nus, samples=key.samples, iterations=key.iterations,
+        n_test=key.test_trajectories, mode=key.sampling, gamma=key.gamma,
+        test_policy=key.test_policy,
+    )  # fmt: skip
+    return nus, cell
+
+
+def cell(s: Scenario):
+    """The ν samplers (ν_t, ν_e, ν_en) and the one compiled cell that DAgger, Batch and Abbeel
+    share on this scenario, whichever ν they draw from (a traced switch)."""
+    return _cell(program_key(s))
+
+
+@lru_cache(maxsize=16)
+def _noise(key: Scenario, test_policy: str):
+    return noise_program(_setup(key).plant, key.test_trajectories, test_policy)
+
+
+def run(method: str, s: Scenario, seeds=None, progress: Progress | None = None) -> Trace:
+    """Run ``method`` (:data:`loopid.algorithms.methods.METHODS`) on scenario ``s``.
+
+    ``seeds``: integer seeds (default ``range(s.seeds)``). Returns a :class:`Trace` with one row
+    per seed and iteration; ``progress(n, row)`` is called after every iteration.
+    """
+    M.check_method(method)
+    seeds = np.arange(s.seeds) if seeds is None else np.asarray(seeds)
+    key = program_key(s)
+    st = _setup(key)
+    keys = seed_keys(seeds)
+    if method == "expert":
+        return run_fixed_policy(
+            st.plant, st.K_expert, seeds, iterations=s.iterations, samples=s.samples,
+            n_test=s.test_trajectories, progress=progress, noise=_noise(key, "last")(keys).test,
+        )  # fmt: skip
+    if method == "pg":
+        # hover: the trim-holding base flies π_1's test trajectories (π_1 never acts from μ);
+        # the funnel's π_1 acts, so its gains are the base there (policy_gradient docstring)
+        return run_policy_gradient(
+            st.plant, _agent(key), seeds, iterations=s.iterations, samples=s.samples,
+            n_test=s.test_trajectories, horizon=s.pg_horizon, sigma=s.pg_sigma, step=s.pg_step,
+            hold=is_hover(s.task), nu_state_var=s.nu_state_var, cost_cap=s.cost_cap,
+            samples_mode=s.pg_samples, progress=progress, noise=_noise(key, "last")(keys).test,
+        )  # fmt: skip
+    nus, compiled = _cell(key)
+    fractions = M.policy_fractions(method, s.iterations, dagger_fraction=s.dagger_fraction)
+    return run_learning(
+        st.plant, _agent(key), nus, fractions, seeds, samples=s.samples,
+        n_test=s.test_trajectories, mode=s.sampling, gamma=s.gamma, test_policy=s.test_policy,
+        progress=progress, cell=compiled, which=NU_KINDS.index(M.nu_kind(method)),
+        noise=_noise(key, s.test_policy)(keys),
+    )  # fmt: skip
+
+
+def report(table, configs: dict[str, Scenario]) -> list[str]:
+    """The final costs per panel, each with its readings of SPEC §5, and the five findings."""
+    notes = {name: f"Readings (SPEC §5): {readings_line(s)}." for name, s in configs.items()}
+    hover = {name for name, s in configs.items() if is_hover(s.task)}
+    return [*final_cost_sections(table, notes), *findings_section(table, hover)]
+
+
+def figure(table, path, configs) -> None:
+    """The paper's Figure 2 (:func:`loopid.experiments.plots.figure`)."""
+    from loopid.experiments.plots import figure as figure2
+
+    figure2(table, path)
+
+
+FAMILY = Family(
+    name="helicopter",
+    config=Scenario,
+    methods=M.METHODS,
+    scenarios=SCENARIOS,
+    default_methods=lambda s: M.METHODS,
+    build=lambda name, fields: scenario(name, **fields),
+    read_file=lambda path: read_flat_file(path, FIELDS),
+    run=run,
+    figure=figure,
+    report=report,
+)
