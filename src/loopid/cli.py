@@ -3,8 +3,8 @@
 Commands:
 
 \b
-  loopid run SCENARIO    one scenario's methods on every seed (hover, hover-delay, funnel,
-                         mdp-random, mdp-trap, mdp-trap-hinge, or gym with --config FILE)
+  loopid run SCENARIO    one scenario's methods on every seed (loopid run --help lists the
+                         scenarios of every family)
   loopid reproduce       the paper's Figure 2, every panel and method, and the finite-MDP study
   loopid study           every reading of the paper's open details (SPEC 5), one at a time
   loopid plot DIR        figure.png and report.md again from DIR/results.parquet
@@ -198,11 +198,19 @@ def scenario_from_options(name: str, config: Path | None, options: dict, assignm
     return family, family.build(name, fields), methods
 
 
+def _scenario_list() -> str:
+    """The registered scenario names, by family (for the help text)."""
+    from loopid.experiments.families import FAMILIES
+
+    return (
+        "; ".join(f"{name}: {', '.join(f.scenarios or [f.name])}" for name, f in FAMILIES.items())
+        + " (gym with --config FILE)."
+    )
+
+
 @app.command()
 def run(
-    scenario: str = typer.Argument(
-        ..., help="hover, hover-delay, funnel, mdp-random, mdp-trap, mdp-trap-hinge, or gym."
-    ),
+    scenario: str = typer.Argument(..., help="A scenario of any family: " + _scenario_list()),
     methods: str = typer.Option(
         None, "--methods", help="Comma-separated methods (default: the scenario's own)."
     ),

@@ -24,7 +24,7 @@ def _rows(rng, b, n, m):
 
 
 def test_hover_nominal_matches_the_paper():
-    model = hover_nominal()
+    model = hover_nominal(21, 4)  # the helicopter's sizes
     A, B = np.asarray(model.A), np.asarray(model.B)
     assert A.shape == (21, 21) and B.shape == (21, 4)
     np.testing.assert_array_equal(A, np.eye(21))

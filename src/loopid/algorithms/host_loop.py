@@ -1,4 +1,5 @@
-"""Algorithm 1 for systems that are not JAX functions (a Gymnasium env, :mod:`loopid.systems.from_gymnasium`).
+"""Algorithm 1 for systems that are not JAX functions (a Gymnasium env:
+:mod:`loopid.systems.from_gymnasium`).
 
 Same semantics as :func:`loopid.algorithms.loop.run_learning`: iteration 1 solves the initial
 model; iteration n = 2..N collects, for every seed, ``ceil(m / horizon)`` training slots of the
@@ -14,18 +15,17 @@ update, its losses and the solve are one jitted function vmapped over seeds (com
 run and shared by every method through ``cell``).
 
 Randomness: slot seeds are ``SeedSequence([seed, n, stream]).generate_state(k, uint32)`` with
-streams 1 (policy), 2 (ν) and 3 (test, with n = 0: the same test episodes at every iteration and
-for every method at that seed, i.e. common random numbers); each slot seeds its env resets and
-action noise (:mod:`loopid.systems.from_gymnasium`). The draws and the policy/ν choice use the JAX loop's
+streams 1 (policy), 2 (ν) and 3 (test, with n = 0: the same test episodes at every iteration and for
+every method at that seed, i.e. common random numbers); each slot seeds its env resets and action
+noise (:mod:`loopid.systems.from_gymnasium`). The draws and the policy/ν choice use the JAX loop's
 keys (:func:`loopid.algorithms.loop.iteration_keys`), and the learning step is the JAX loop's
 (:func:`loopid.algorithms.loop.learning_step`).
 
-Test cost of one episode: ``Σ_t c(o_t, a_t)`` over the actions taken (plus ``termination_cost``
-if it ended by ``terminated``), capped at ``cost_cap``; an episode that reaches the cap or a
-non-finite value counts as diverged. ``c`` is a :class:`~loopid.systems.from_gymnasium.QuadraticCost` (on
-the observed entries), ``"reward"`` (the env's own reward, negated: ``c_t = −r_t``) or any
-callable ``cost(obs, action) -> float`` on the raw observation. The tested policy is the last
-one.
+Test cost of one episode: ``Σ_t c(o_t, a_t)`` over the actions taken (plus ``termination_cost`` if
+it ended by ``terminated``), capped at ``cost_cap``; an episode that reaches the cap or a non-finite
+value counts as diverged. ``c`` is a :class:`~loopid.systems.from_gymnasium.QuadraticCost` (on the
+observed entries), ``"reward"`` (the env's own reward, negated: ``c_t = −r_t``) or any callable
+``cost(obs, action) -> float`` on the raw observation. The tested policy is the last one.
 """
 
 from collections.abc import Callable
@@ -199,8 +199,8 @@ def run_learning_host(
     """Run one learning method on a host system for ``len(fractions)`` iterations, every seed.
 
     ``fractions[n−1]`` = ``p_n`` (``fractions[0]`` unused); ``cost(obs, action) -> float`` is the
-    test cost (:class:`~loopid.systems.from_gymnasium.QuadraticCost` or any callable); ``progress(n, row)``
-    after each iteration; ``cell`` from :func:`make_host_cell` to reuse its compilation.
+    test cost (:class:`~loopid.systems.from_gymnasium.QuadraticCost` or any callable); ``progress(n,
+    row)`` after each iteration; ``cell`` from :func:`make_host_cell` to reuse its compilation.
     """
     fractions = np.asarray(fractions, dtype=np.float64)
     N = int(fractions.shape[0]) if fractions.ndim == 1 else 0

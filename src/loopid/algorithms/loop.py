@@ -18,13 +18,13 @@ once; :func:`run_learning` calls it N − 1 times from Python (no retracing: the
 ``p_n`` are traced arguments), which gives progress and early results per iteration.
 
 Randomness: seed ``s`` has key ``k = jax.random.key(s)``; training draws at iteration n use
-``fold_in(fold_in(k, 1), n)`` (:func:`iteration_keys`, shared by every loop). The test trajectories' process noise is drawn once per seed from
-``fold_in(k, 2)`` and reused at every iteration, so every method sees the same test noise at the
-same seed and iteration (common random numbers), and a curve's changes from one iteration to the
-next come from the policy alone. (Drawing it afresh each iteration would cost more than the
-simulation itself: threefry on a CPU makes ~13 M float64 normals per second.) ``test_policy =
-"best"`` selects the best policy so far on a second, independent noise set (``fold_in(k, 3)``),
-so its reported cost is not biased by the selection.
+``fold_in(fold_in(k, 1), n)`` (:func:`iteration_keys`, shared by every loop). The test trajectories'
+process noise is drawn once per seed from ``fold_in(k, 2)`` and reused at every iteration, so every
+method sees the same test noise at the same seed and iteration (common random numbers), and a
+curve's changes from one iteration to the next come from the policy alone. (Drawing it afresh each
+iteration would cost more than the simulation itself: threefry on a CPU makes ~13 M float64 normals
+per second.) ``test_policy = "best"`` selects the best policy so far on a second, independent noise
+set (``fold_in(k, 3)``), so its reported cost is not biased by the selection.
 """
 
 import functools

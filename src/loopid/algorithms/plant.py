@@ -58,9 +58,9 @@ from loopid.systems.tasks import Task
 class Transitions(NamedTuple):
     """A fixed-shape batch of recorded transitions ``(x_t, Δu_t, x_{t+1})``; leading axis ``[b]``.
 
-    ``x`` is the raw state ``[n_x]`` (needed to query the system again), ``dx``/``dx_next`` the error
-    coordinates relative to ``target[t]``/``target[t+1]``, ``t`` the target time index (int32),
-    ``mask`` which rows hold real data. Masked rows are zero-filled, never NaN.
+    ``x`` is the raw state ``[n_x]`` (needed to query the system again), ``dx``/``dx_next`` the
+    error coordinates relative to ``target[t]``/``target[t+1]``, ``t`` the target time index
+    (int32), ``mask`` which rows hold real data. Masked rows are zero-filled, never NaN.
     """
 
     x: jax.Array
@@ -169,7 +169,8 @@ class Plant(NamedTuple):
 
     def eval_costs(self, K: jax.Array, noise: jax.Array) -> tuple[jax.Array, jax.Array]:
         """Capped costs ``[n_test]`` and diverged flags of the test trajectories of ``K`` driven by
-        ``noise [n_test, horizon, n_noise]`` (the same noise for every policy: common random numbers)."""
+        ``noise [n_test, horizon, n_noise]`` (the same noise for every policy: common random
+        numbers)."""
         costs, diverged = self.eval_seeds(K[None], noise_columns(noise[None]))
         return costs[0], diverged[0]
 

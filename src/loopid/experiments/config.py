@@ -4,6 +4,7 @@ TOML file, ``--set key=value`` and hashable (frozen) TOML values.
 Every error is a ``ValueError`` whose one line names the bad value and what is allowed.
 """
 
+import dataclasses
 import math
 import tomllib
 from collections.abc import Sequence
@@ -19,6 +20,15 @@ def seed_list(config) -> np.ndarray:
     if isinstance(seeds, int | np.integer) and not isinstance(seeds, bool):
         return np.arange(int(seeds))
     return np.asarray(seeds, dtype=np.int64)
+
+
+def replaced(config, changes: dict, what: str = "scenario"):
+    """A copy of the frozen dataclass ``config`` with ``changes`` (validated again by its
+    ``__post_init__``); unknown field names raise ``ValueError`` naming them."""
+    unknown = sorted(set(changes) - {f.name for f in dataclasses.fields(config)})
+    if unknown:
+        raise ValueError(f"unknown {what} field(s): {', '.join(unknown)}")
+    return dataclasses.replace(config, **changes)
 
 
 def check_int(name: str, v, minimum: int = 1) -> None:

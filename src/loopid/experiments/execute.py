@@ -180,10 +180,9 @@ def run_cells(
     return rd.write_results(order)
 
 
-def run_family(run_dir) -> tuple[Family, dict[str, Scenario]]:
-    """The family of a run directory and its scenarios' configs, from ``config.toml``; without
-    one (a bare ``results.parquet``), the family and packaged configs of the table's scenario
-    names (the helicopter's for unknown names)."""
+def run_family(run_dir) -> tuple[Family | None, dict[str, Scenario]]:
+    """The family of a run directory and its scenarios' configs, from ``config.toml``; ``(None,
+    {})`` without one."""
     run_dir = Path(run_dir)
     cfg_file = run_dir / "config.toml"
     if cfg_file.is_file():
@@ -193,9 +192,7 @@ def run_family(run_dir) -> tuple[Family, dict[str, Scenario]]:
             raise ValueError(f"{cfg_file}: unknown family {name!r}")
         family = FAMILIES[name]
         try:
-            configs = {
-                n: family.config(**d) for n, d in config.get("scenario", {}).items()
-            }
+            configs = {n: family.config(**d) for n, d in config.get("scenario", {}).items()}
         except (TypeError, ValueError) as e:
             raise ValueError(f"{cfg_file}: {' '.join(str(e).split())}") from None
         return family, configs
@@ -203,7 +200,9 @@ def run_family(run_dir) -> tuple[Family, dict[str, Scenario]]:
 
 
 def write_outputs(run_dir, table: pa.Table, command_s: float | None = None) -> None:
-    """``figure.png`` and ``report.md`` of a run directory, drawn by its family."""
+    """``figure.png`` and ``report.md`` of a run directory, drawn by its family. Without a
+    ``config.toml`` (a bare ``results.parquet``): the family and packaged configs of the table's
+    scenario names, the helicopter's when no name is registered."""
     run_dir = Path(run_dir)
     family, configs = run_family(run_dir)
     if family is None:

@@ -17,7 +17,7 @@ from loopid.algorithms.collect import SAMPLING_MODES
 from loopid.algorithms.loop import TEST_POLICIES
 from loopid.algorithms.plant import check_delay_reading
 from loopid.algorithms.policy_gradient import SAMPLES_MODES as PG_SAMPLES
-from loopid.experiments.config import check_int, check_number, read_flat_file
+from loopid.experiments.config import check_int, check_number, read_flat_file, replaced
 from loopid.systems.funnel_nominal import FUNNEL_NOMINALS
 from loopid.systems.tasks import TASK_NAMES
 
@@ -92,10 +92,7 @@ class Scenario:
 
     def replace(self, **changes) -> "Scenario":
         """A copy with ``changes``; unknown field names raise ``ValueError`` naming them."""
-        unknown = sorted(set(changes) - {f.name for f in dataclasses.fields(self)})
-        if unknown:
-            raise ValueError(f"unknown scenario field(s): {', '.join(unknown)}")
-        return dataclasses.replace(self, **changes)
+        return replaced(self, changes, "scenario")
 
     def to_dict(self) -> dict:
         """The fields as a plain dict (None values dropped, for TOML)."""

@@ -156,7 +156,7 @@ def to_matrices(model: LinearOffsetModel, W) -> tuple[jax.Array, jax.Array]:
     return A, B
 
 
-def hover_nominal(n: int = 21, m: int = 4) -> LinearOffsetModel:
+def hover_nominal(n: int, m: int) -> LinearOffsetModel:
     """The paper's initial hover model: A = I [n, n]; B [n, m] adds Δu into the u_prev (rows 0..m-1)
     and du_prev (rows m..2m-1) entries of the error state (SPEC §3 state layout)."""
     for name, v in (("n", n), ("m", m)):

@@ -13,6 +13,19 @@ from loopid.experiments.families.base import Family
 FAMILIES: dict[str, Family] = {f.name: f for f in (helicopter.FAMILY, mdp.FAMILY, gym.FAMILY)}
 
 
+def register(family: Family) -> Family:
+    """Add ``family`` to :data:`FAMILIES` (a family defined outside loopid, from Python); its
+    scenario names must not be taken. Returns it."""
+    if not isinstance(family, Family):
+        raise TypeError(f"register takes a Family, got {type(family).__name__}")
+    taken = scenario_names()
+    clash = sorted(n for n in (family.scenarios or [family.name]) if n in taken)
+    if family.name in FAMILIES or clash:
+        raise ValueError(f"family {family.name!r} or scenario name(s) {clash} already taken")
+    FAMILIES[family.name] = family
+    return family
+
+
 def scenario_names() -> dict[str, Family]:
     """Every scenario name ``loopid run`` accepts, with its family (``gym`` is built from a
     file, so it is the one name of a family without shipped scenarios)."""
@@ -36,7 +49,10 @@ def family_of(config) -> Family:
     for family in FAMILIES.values():
         if isinstance(config, family.config):
             return family
-    raise TypeError(f"{type(config).__name__} is not the config of any family")
+    raise TypeError(
+        f"{type(config).__name__} is not the config of any registered family (a worker process "
+        "knows the families its imports register: define a family in an importable module)"
+    )
 
 
-__all__ = ["FAMILIES", "Family", "family_named", "family_of", "scenario_names"]
+__all__ = ["FAMILIES", "Family", "family_named", "family_of", "register", "scenario_names"]

@@ -40,7 +40,9 @@ class Family:
       build: ``build(name, fields) -> config``: the named scenario (or, for a family without
         shipped scenarios, a new one) with ``fields`` set; ``ValueError`` on a bad field.
       read_file: ``read_file(path) -> (fields, methods or None)``: a ``--config`` TOML file.
-      run: ``run(method, config, seeds, progress) -> Trace``: one cell, every seed at once.
+      run: ``run(method, config, seeds, progress=None) -> Trace``: one cell, every seed at once
+        (``seeds``: an integer array; ``progress`` is passed by keyword). Workers and Ray call
+        it in other processes, so it must be importable there (a module-level function).
       figure: ``figure(table, path, configs)``: the run's ``figure.png``.
       report: ``report(table, configs) -> lines``: the family's sections of ``report.md``
         (Markdown lines), after the common header, configuration and wall time.

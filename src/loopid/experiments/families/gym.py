@@ -27,7 +27,7 @@ mean test cost against samples, ± one standard error, per method; report: the f
 """
 
 import importlib
-from dataclasses import dataclass, fields, replace
+from dataclasses import dataclass, fields
 from functools import lru_cache
 from typing import Any, NamedTuple
 
@@ -50,6 +50,7 @@ from loopid.experiments.config import (
     check_number,
     freeze,
     read_toml,
+    replaced,
     seed_list,
     thaw,
 )
@@ -124,10 +125,7 @@ class GymScenario:
 
     def replace(self, **changes) -> "GymScenario":
         """A copy with ``changes``; unknown fields and bad values raise ``ValueError``."""
-        unknown = sorted(set(changes) - set(FIELDS))
-        if unknown:
-            raise ValueError(f"unknown gym scenario field(s): {', '.join(unknown)}")
-        return replace(self, **changes)
+        return replaced(self, changes, "gym scenario")
 
     def to_dict(self) -> dict:
         """The fields as plain TOML values (lists, tables), ``None`` left out."""

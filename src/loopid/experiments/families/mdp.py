@@ -23,7 +23,7 @@ Lemma 4.1 once the policies contribute), ``eps_prd_l1``, ``eps_prd_kl``, ``eps_m
 """
 
 from collections.abc import Callable
-from dataclasses import asdict, dataclass, fields, replace
+from dataclasses import asdict, dataclass, fields
 from functools import lru_cache
 from pathlib import Path
 from typing import NamedTuple
@@ -42,7 +42,13 @@ from loopid.algorithms.mdp_agent import (
     mdp_plant,
     policy_nu,
 )
-from loopid.experiments.config import check_choice, check_int, check_number, read_flat_file
+from loopid.experiments.config import (
+    check_choice,
+    check_int,
+    check_number,
+    read_flat_file,
+    replaced,
+)
 from loopid.experiments.families.base import Family
 from loopid.systems.mdp import TRAP_WALK, FiniteMDP, random_mdp, trap_mdp
 
@@ -107,10 +113,7 @@ class MDPScenario:
 
     def replace(self, **changes) -> "MDPScenario":
         """A copy with ``changes``; unknown fields and bad values raise ValueError."""
-        unknown = sorted(set(changes) - {f.name for f in fields(self)})
-        if unknown:
-            raise ValueError(f"unknown MDP scenario field(s): {', '.join(unknown)}")
-        return replace(self, **changes)
+        return replaced(self, changes, "MDP scenario")
 
     def to_dict(self) -> dict:
         """The fields as a plain dict (for config.toml)."""
