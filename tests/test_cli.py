@@ -269,7 +269,7 @@ def test_ray_executor_gives_the_local_table_for_an_mdp(tmp_path, cache):
 @pytest.mark.slow
 def test_study_quick_writes_every_file_and_covers_every_reading(tmp_path, cache, quick):
     """``loopid study --quick``, sharing the default reading's cells with a reproduce run."""
-    from loopid.experiments.study import FAMILIES, READING_FIELDS, READINGS
+    from loopid.experiments.study import FIGURES, READING_FIELDS, READINGS
 
     before = _cell_mtimes(quick)
     out = tmp_path / "study"
@@ -278,7 +278,7 @@ def test_study_quick_writes_every_file_and_covers_every_reading(tmp_path, cache,
     assert _cell_mtimes(quick) == before  # the reproduce run's cells were reused, not redone
     names = {p.name for p in out.iterdir()}
     files = {"study.md", "study.parquet", "results.parquet", "config.toml"}
-    assert {*files, *(f"study_{f}.png" for f in FAMILIES)} <= names
+    assert {*files, *(f"study_{f}.png" for f in FIGURES)} <= names
     shared = {p.name for p in (quick / "cells").iterdir()}
     copied = {p.name for p in (out / "cells").iterdir()}
     assert shared <= copied  # every cell of the default reading came from the reproduce run
@@ -305,7 +305,7 @@ def test_study_quick_writes_every_file_and_covers_every_reading(tmp_path, cache,
         assert f"### {rd.id}:" in text
     assert text.count("**holds**") + text.count("**does not hold**") >= 5 * len(READINGS) - 5
     assert not re.search(r"\bnan\b", text, re.IGNORECASE)
-    for f in FAMILIES:
+    for f in FIGURES:
         assert (out / f"study_{f}.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
 
 

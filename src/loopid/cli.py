@@ -320,7 +320,7 @@ def study(
     workers: int = WORKERS,
 ) -> None:
     """Every reading of the paper's open details (SPEC 5), one factor at a time: study.md,
-    study.parquet and one figure per reading family."""
+    study.parquet and one figure per group of readings."""
     from loopid.experiments.execute import check_cells, resolved_config, run_cells
     from loopid.experiments.executors import check_executor
     from loopid.experiments.results import write_atomic

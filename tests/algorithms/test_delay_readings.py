@@ -130,7 +130,7 @@ def _dagger_model(delay_mode: str):
     learner = ftrl_least_squares(1e-3)
     agent = linear_agent(nominal, learner, task.Q, task.R, HORIZON)
     nu = nu_trajectory(plant, state_var=0.25, action_var=0.25)
-    start, step = make_cell(plant, agent, nu, samples=100, iterations=ITERATIONS, n_test=10)
+    start, step, _ = make_cell(plant, agent, nu, samples=100, iterations=ITERATIONS, n_test=10)
     keys = seed_keys(np.arange(3))
     noise = eval_noise(plant, keys, 10, "last")
     carry, _ = start(keys, noise)

@@ -54,7 +54,7 @@ class LinearSetup:
         self.nu = nu_trajectory(self.plant, state_var=0.25, action_var=0.25)
         self.keys = seed_keys(SEEDS)
         self.noise = eval_noise(self.plant, self.keys, N_TEST, "last")
-        self.start, self.step = make_cell(
+        self.start, self.step, _ = make_cell(
             self.plant, self.agent, self.nu, samples=SAMPLES, iterations=ITERATIONS, n_test=N_TEST
         )
         self._runs = {}

@@ -120,6 +120,17 @@ class Trace(NamedTuple):
     rows: Row
 
 
+class Cell(NamedTuple):
+    """One compiled learning cell (:func:`make_cell`): ``start(keys, noise) -> (carry, Row)``,
+    ``step(carry, keys, noise, n, p, which) -> (carry, Row)`` and ``noise(keys) -> EvalNoise``
+    (the seeds' test noise, :func:`noise_program`), each compiled once and reused by every
+    method that shares the cell."""
+
+    start: Callable
+    step: Callable
+    noise: Callable
+
+
 class _Carry(NamedTuple):
     learner: Any
     K: jax.Array
@@ -296,7 +307,7 @@ def make_cell(
     test_policy: str = "last",
     diagnostics: Diagnostics | None = None,
 ):
-    """Build ``(start, step)``, jitted, over all seeds at once, for one learning method.
+    """Build the :class:`Cell` ``(start, step, noise)``, jitted, over all seeds at once.
 
     Collection and the learner's update are vmapped over seeds; the solve runs as the agent's
     ``policies`` says (default seed by seed, ``seeds_in_turn``) and the test trajectories of all
@@ -391,7 +402,7 @@ def make_cell(
         """Iteration 1: the initial model solved and tested (the same compiled ``step``)."""
         return step(init(keys), keys, noise, jnp.int32(1), jnp.float64(0.0), jnp.int32(0))
 
-    return start, step
+    return Cell(start, step, noise_program(plant, n_test, test_policy))
 
 
 def run_learning(
@@ -416,9 +427,9 @@ def run_learning(
     ``fractions[n−1]`` is the probability ``p_n`` that a slot of iteration n's batch comes from
     the policy (``fractions[0]`` is unused: iteration 1 collects nothing). ``progress(n, row)`` is
     called after each iteration with that iteration's :class:`Row` (leaves ``[S]``). ``cell``:
-    a ``(start, step)`` pair from :func:`make_cell` with the same arguments, to reuse its
-    compilation across methods (DAgger, Batch, Abbeel); ``which`` picks the ν of a list.
-    ``noise``: the seeds' :class:`EvalNoise` when the caller keeps a :func:`noise_program`.
+    a :class:`Cell` from :func:`make_cell` with the same arguments, to reuse its compilation
+    across methods (DAgger, Batch, Abbeel) and calls; ``which`` picks the ν of a list.
+    ``noise``: the seeds' :class:`EvalNoise` (default: the cell's ``noise(keys)``).
     """
     which = jnp.int32(which)
     fractions = np.asarray(fractions, dtype=np.float64)
@@ -433,9 +444,9 @@ def run_learning(
             plant, agent, nu, samples=samples, iterations=iterations, n_test=n_test, mode=mode,
             gamma=gamma, test_policy=test_policy,
         )  # fmt: skip
-    start, step = cell
+    start, step, noise_of = cell
     if noise is None:
-        noise = eval_noise(plant, keys, n_test, test_policy)
+        noise = noise_of(keys)
 
     def one(carry, n):
         return step(carry, keys, noise, jnp.int32(n), jnp.float64(fractions[n - 1]), which)

@@ -31,7 +31,7 @@ table, each panel under its own name, with the columns ``reading`` and the readi
 ``study.md`` (per reading: final
 medians per panel and method, the five findings of SPEC §4.5 computed from the table, and for
 the funnel each nominal's one-step prediction error along the expert's flight) and one figure per
-reading family (``study_delay.png``, ``study_funnel.png``, ``study_pg.png``,
+figure group (``study_delay.png``, ``study_funnel.png``, ``study_pg.png``,
 ``study_favoured.png``, in the layout of Figure 2).
 """
 
@@ -49,13 +49,13 @@ from loopid.experiments.scenarios import READING_FIELDS, SCENARIOS, Scenario, re
 
 
 class Reading(NamedTuple):
-    """One reading: ``id`` (a directory name), ``family`` (its figure), ``label``, the field
+    """One reading: ``id`` (a directory name), ``figure`` (the group of ``study_FIGURE.png`` it is drawn in), ``label``, the field
     ``changes`` away from the default, the ``panels`` (scenario names) and ``methods`` whose
     cells it runs, the SPEC section it comes from, and for a combination its ``parts`` (ids of
     one-factor readings whose cells it takes)."""
 
     id: str
-    family: str
+    figure: str
     label: str
     changes: dict
     panels: tuple[str, ...]
@@ -105,7 +105,7 @@ READINGS: tuple[Reading, ...] = (
     ),
 )  # fmt: skip
 BY_ID = {r.id: r for r in READINGS}
-FAMILIES = ("delay", "funnel", "pg", "favoured")
+FIGURES = ("delay", "funnel", "pg", "favoured")
 
 
 def scenario_name(r: Reading, panel: str) -> str:
@@ -243,13 +243,13 @@ def reading_findings(table: pa.Table, r: Reading, base: dict[str, Scenario]) -> 
 
 
 def figures(table: pa.Table, out: Path) -> list[Path]:
-    """One figure per reading family, in the layout of Figure 2 (a panel per reading)."""
+    """One figure per group of readings, in the layout of Figure 2 (a panel per reading)."""
     from loopid.experiments.plots import figure
 
     paths = []
-    for family in FAMILIES:
-        rs = [r for r in READINGS if r.family == family]
-        if family in ("delay", "funnel"):
+    for group in FIGURES:
+        rs = [r for r in READINGS if r.figure == group]
+        if group in ("delay", "funnel"):
             panel = rs[0].panels[0]
             rs = [BY_ID["default"], *rs]
             pieces = [
@@ -257,7 +257,7 @@ def figures(table: pa.Table, out: Path) -> list[Path]:
                 for r in rs
                 if _subtable(table, r.id).num_rows
             ]
-        elif family == "pg":
+        elif group == "pg":
             pieces = []
             for p in ALL_PANELS:
                 default = _subtable(table, "default")
@@ -276,7 +276,7 @@ def figures(table: pa.Table, out: Path) -> list[Path]:
         if not pieces:
             continue
         plain = concat([p.select(list(read_cols(p))) for p in pieces])
-        paths.append(figure(plain, out / f"study_{family}.png"))
+        paths.append(figure(plain, out / f"study_{group}.png"))
     return paths
 
 

@@ -11,9 +11,9 @@ runs a method on all seeds at once (:mod:`loopid.algorithms.loop`). Figure: the 
 (:mod:`loopid.experiments.plots`); report: the final costs with each panel's readings of
 SPEC §5, and the paper's five findings (:mod:`loopid.experiments.findings`).
 
-Caching: the setup, the agent, the compiled cell and the test-noise program are kept in bounded
-caches keyed on :func:`program_key` (the scenario itself with the fields that cannot change a
-compiled program, its name and seed count, set to fixed values), so every method of a run shares
+Caching: the setup, the agent and the compiled cell (with its test-noise program) are kept in
+bounded caches keyed on :func:`program_key` (the scenario itself with the fields that cannot change
+a compiled program, its name and seed count, set to fixed values), so every method of a run shares
 one compilation and renamed copies of a panel (the readings study) share it too.
 """
 
@@ -29,7 +29,6 @@ from loopid.algorithms.loop import (
     Agent,
     Trace,
     make_cell,
-    noise_program,
     run_fixed_policy,
     run_learning,
     seed_keys,
@@ -136,11 +135,6 @@ def cell(s: Scenario):
     return _cell(program_key(s))
 
 
-@lru_cache(maxsize=16)
-def _noise(key: Scenario, test_policy: str):
-    return noise_program(_setup(key).plant, key.test_trajectories, test_policy)
-
-
 def run(method: str, s: Scenario, seeds=None, progress: Progress | None = None) -> Trace:
     """Run ``method`` (:data:`loopid.algorithms.methods.METHODS`) on scenario ``s``.
 
@@ -151,11 +145,12 @@ def run(method: str, s: Scenario, seeds=None, progress: Progress | None = None) 
     seeds = np.arange(s.seeds) if seeds is None else np.asarray(seeds)
     key = program_key(s)
     st = _setup(key)
-    keys = seed_keys(seeds)
+    nus, compiled = _cell(key)
+    noise = compiled.noise(seed_keys(seeds))  # every method's test noise, one program
     if method == "expert":
         return run_fixed_policy(
             st.plant, st.K_expert, seeds, iterations=s.iterations, samples=s.samples,
-            n_test=s.test_trajectories, progress=progress, noise=_noise(key, "last")(keys).test,
+            n_test=s.test_trajectories, progress=progress, noise=noise.test,
         )  # fmt: skip
     if method == "pg":
         # hover: the trim-holding base flies π_1's test trajectories (π_1 never acts from μ);
@@ -164,15 +159,14 @@ def run(method: str, s: Scenario, seeds=None, progress: Progress | None = None) 
             st.plant, _agent(key), seeds, iterations=s.iterations, samples=s.samples,
             n_test=s.test_trajectories, horizon=s.pg_horizon, sigma=s.pg_sigma, step=s.pg_step,
             hold=is_hover(s.task), nu_state_var=s.nu_state_var, cost_cap=s.cost_cap,
-            samples_mode=s.pg_samples, progress=progress, noise=_noise(key, "last")(keys).test,
+            samples_mode=s.pg_samples, progress=progress, noise=noise.test,
         )  # fmt: skip
-    nus, compiled = _cell(key)
     fractions = M.policy_fractions(method, s.iterations, dagger_fraction=s.dagger_fraction)
     return run_learning(
         st.plant, _agent(key), nus, fractions, seeds, samples=s.samples,
         n_test=s.test_trajectories, mode=s.sampling, gamma=s.gamma, test_policy=s.test_policy,
         progress=progress, cell=compiled, which=NU_KINDS.index(M.nu_kind(method)),
-        noise=_noise(key, s.test_policy)(keys),
+        noise=noise,
     )  # fmt: skip
 
 
