@@ -49,10 +49,10 @@ from loopid.experiments.scenarios import READING_FIELDS, SCENARIOS, Scenario, re
 
 
 class Reading(NamedTuple):
-    """One reading: ``id`` (a directory name), ``figure`` (the group of ``study_FIGURE.png`` it is drawn in), ``label``, the field
-    ``changes`` away from the default, the ``panels`` (scenario names) and ``methods`` whose
-    cells it runs, the SPEC section it comes from, and for a combination its ``parts`` (ids of
-    one-factor readings whose cells it takes)."""
+    """One reading: ``id`` (a directory name), ``figure`` (which ``study_FIGURE.png`` draws it),
+    ``label``, the field ``changes`` away from the default, the ``panels`` (scenario names) and
+    ``methods`` whose cells it runs, the SPEC section it comes from, and for a combination its
+    ``parts`` (ids of one-factor readings whose cells it takes)."""
 
     id: str
     figure: str
