@@ -1,5 +1,7 @@
 """The package's import graph has no cycle (issue 16): every ``import loopid...`` anywhere in a
-module, at its top or inside a function, is an edge; a cycle among them is a failure."""
+module, at its top or inside a function, is an edge; a cycle among them is a failure. An import
+of a module's own ancestor package (``import loopid`` in ``loopid.experiments.execute``) is not
+an edge: Python has imported the ancestors before the module, whatever it names."""
 
 import ast
 from pathlib import Path
@@ -27,7 +29,9 @@ def import_graph() -> dict[str, set[str]]:
             elif isinstance(node, ast.ImportFrom) and node.module and node.level == 0:
                 subs = [f"{node.module}.{a.name}" for a in node.names]
                 targets = [m for m in subs if m in modules] or [node.module]
-            graph[name] |= {t for t in targets if t in modules and t != name}
+            graph[name] |= {
+                t for t in targets if t in modules and t != name and not name.startswith(t + ".")
+            }
     return graph
 
 

@@ -24,4 +24,12 @@ from loopid.systems._register import register_envs as _register_envs  # noqa: E4
 
 _register_envs()
 
-__all__ = ["__version__"]
+
+def load(run_dir, scenario: str, method: str, seed: int):
+    """The saved final model and controller of a run (:func:`loopid.experiments.saved.load`)."""
+    from loopid.experiments.saved import load as _load
+
+    return _load(run_dir, scenario, method, seed)
+
+
+__all__ = ["__version__", "load"]

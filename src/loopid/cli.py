@@ -7,6 +7,7 @@ Commands:
                          scenarios of every family)
   loopid reproduce       the paper's Figure 2, every panel and method, and the finite-MDP study
   loopid study           every reading of the paper's open details (SPEC 5), one at a time
+  loopid evaluate DIR    the run's saved controllers on fresh test episodes
   loopid plot DIR        figure.png and report.md again from DIR/results.parquet
 
 A run directory holds config.toml, results.parquet, figure.png, report.md and cells/ (one file
@@ -360,6 +361,33 @@ def study(
     prediction = funnel_prediction_lines(base["funnel"])
     write_outputs(out, readings, base, command_s=time.perf_counter() - t0, prediction=prediction)
     output.log(f"wrote study.parquet ({readings.num_rows} rows), study.md and figures to {out}/")
+
+
+@app.command()
+def evaluate(
+    run_dir: Path = typer.Argument(..., help="A run directory (loopid run or reproduce)."),
+    scenario: str = typer.Option(None, "--scenario", help="Only this scenario."),
+    method: str = typer.Option(None, "--method", help="Only this method."),
+    seed: int = typer.Option(None, "--seed", help="Only this seed."),
+    episodes: int = typer.Option(
+        None, "--episodes", help="Fresh test episodes per seed (default: the run's count)."
+    ),
+    env: str = typer.Option(None, "--env", help="gym runs: fly on this Gymnasium id instead."),
+) -> None:
+    """Fly a run's saved final controllers on fresh test episodes; print mean +- s.e. cost and
+    append the rows to RUN_DIR/evaluate.parquet."""
+    from loopid.experiments.evaluate import evaluate_run
+
+    rows = evaluate_run(
+        run_dir, scenario=scenario, method=method, seed=seed, episodes=episodes, env=env
+    ).to_pylist()
+    for r in rows:
+        typer.echo(
+            f"{r['scenario']} / {r['method']} / seed {r['seed']}: {r['mean']:.6g} +- "
+            f"{r['se']:.3g} over {r['episodes']} episodes{' on ' + r['env'] if r['env'] else ''} "
+            f"(the run recorded {r['recorded']:.6g})"
+        )
+    typer.echo(f"appended {len(rows)} rows to {run_dir / 'evaluate.parquet'}", err=True)
 
 
 @app.command()

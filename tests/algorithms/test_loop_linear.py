@@ -54,7 +54,7 @@ class LinearSetup:
         self.nu = nu_trajectory(self.plant, state_var=0.25, action_var=0.25)
         self.keys = seed_keys(SEEDS)
         self.noise = eval_noise(self.plant, self.keys, N_TEST, "last")
-        self.start, self.step, _ = make_cell(
+        self.cell = make_cell(
             self.plant, self.agent, self.nu, samples=SAMPLES, iterations=ITERATIONS, n_test=N_TEST
         )
         self._runs = {}
@@ -63,11 +63,11 @@ class LinearSetup:
         """(final carry, rows stacked [S, N]) of ``method``'s policy-fraction schedule."""
         if method not in self._runs:
             fractions = M.policy_fractions(method, ITERATIONS)
-            carry, row = self.start(self.keys, self.noise)
+            carry, row = self.cell.start(self.keys, self.noise)
             rows = [row]
             for n in range(2, ITERATIONS + 1):
                 p = jnp.float64(fractions[n - 1])
-                carry, row = self.step(carry, self.keys, self.noise, jnp.int32(n), p)
+                carry, row = self.cell.step(carry, self.keys, self.noise, jnp.int32(n), p)
                 rows.append(row)
             stacked = jax.tree_util.tree_map(lambda *a: np.stack(a, axis=1), *rows)
             self._runs[method] = (carry, stacked)
@@ -159,7 +159,7 @@ def test_run_learning_matches_cell_and_is_deterministic(lin):
     """Same seeds, same Trace: run_learning (its own keys, test noise and iteration loop on the
     shared compiled cell) reproduces bit for bit the rows driven by hand earlier."""
     fractions = M.policy_fractions("dagger-t", ITERATIONS)
-    cell = (lin.start, lin.step)
+    cell = lin.cell
     a = run_learning(
         lin.plant, lin.agent, lin.nu, fractions, SEEDS, samples=SAMPLES, n_test=N_TEST, cell=cell
     )

@@ -52,6 +52,8 @@ from loopid.models.linear_offset import LinearOffsetModel
 from loopid.systems.from_gymnasium import GymSystem, QuadraticCost, Rollouts, Slot
 
 _POLICY, _NU, _TEST = 1, 2, 3
+#: The slot stream of ``loopid evaluate``'s episodes: noise the run never saw.
+EVALUATE = 4
 
 
 class Exploration(NamedTuple):
@@ -181,6 +183,31 @@ def episode_costs(system: GymSystem, r: Rollouts, cost, *, termination_cost=0.0,
     return np.where(diverged, cost_cap, total), diverged
 
 
+def test_episodes(
+    system: GymSystem,
+    K,
+    seeds,
+    n_test: int,
+    cost,
+    termination_cost=0.0,
+    cost_cap=1e8,
+    stream: int = _TEST,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Capped costs and diverged flags ``[S, n_test]`` of every seed's policy ``K [S, T, m, n]``
+    on that seed's test episodes (slot seeds ``SeedSequence([seed, 0, stream])``; the default
+    stream 3 gives the same episodes at every iteration, for every method, and for a policy
+    reloaded later; :data:`EVALUATE` gives fresh ones)."""
+    S = len(seeds)
+    slots = [
+        Slot(0, s, x, 0.0, False) for s in range(S) for x in slot_seeds(seeds[s], 0, stream, n_test)
+    ]
+    r = system.rollouts([system.linear_policy(np.asarray(K))], slots)
+    costs, div = episode_costs(
+        system, r, cost, termination_cost=termination_cost, cost_cap=cost_cap
+    )
+    return costs.reshape(S, n_test), div.reshape(S, n_test)
+
+
 def run_learning_host(
     system: GymSystem,
     agent: Agent,
@@ -217,17 +244,9 @@ def run_learning_host(
     if cell is None:
         cell = make_host_cell(agent, samples=samples, with_nu=nu is not None)
     runs = -(-samples // system.horizon)
-    test_slots = [
-        Slot(0, s, x, 0.0, False) for s in range(S) for x in slot_seeds(seeds[s], 0, _TEST, n_test)
-    ]
 
     def test(K) -> tuple:
-        policies = [system.linear_policy(np.asarray(K))]
-        r = system.rollouts(policies, test_slots)
-        costs, div = episode_costs(
-            system, r, cost, termination_cost=termination_cost, cost_cap=cost_cap
-        )
-        costs, div = costs.reshape(S, n_test), div.reshape(S, n_test)
+        costs, div = test_episodes(system, K, seeds, n_test, cost, termination_cost, cost_cap)
         return costs.mean(1), np.median(costs, axis=1), div.sum(1)
 
     def start():
@@ -259,7 +278,11 @@ def run_learning_host(
         )
         return (carry, K), _row(*test(K), *(np.asarray(a) for a in stats), info)
 
-    return _trace(seeds, samples, drive(start, step, N, progress))
+    (carry, K), rows = drive(start, step, N, progress)
+    final = {"K": K}
+    if agent.params is not None:
+        final |= jax.vmap(agent.params)(carry.learner)
+    return _trace(seeds, samples, rows, final)
 
 
 def _row(mean, median, div, loss_nu, loss_pol, online, pol_n, valid_n, info) -> Row:

@@ -40,6 +40,9 @@ from loopid.algorithms.plant import LoopPlant, Transitions, noise_columns, selec
 
 TEST_POLICIES = ("last", "best", "mixture")
 _TRAIN, _TEST, _SELECT = 1, 2, 3
+#: The key stream of ``loopid evaluate``'s test trajectories: ``fold_in(k, 4)``, noise the run
+#: never saw.
+EVALUATE = 4
 
 
 class SolverInfo(NamedTuple):
@@ -61,6 +64,8 @@ class Agent(NamedTuple):
     - ``policies(states) -> (K [S, horizon, m, n], SolverInfo [S])`` (optional): ``policy`` of
       every seed (a leading seed axis), in whatever way suits the solver (batched, or seed by
       seed so that a ``cond`` skips the branch it does not take); default seed by seed.
+    - ``params(state) -> {name: array}`` (optional): the learned model's parameters, what a run
+      saves of it (:attr:`Trace.final`).
     """
 
     init: Callable[[], Any]
@@ -68,6 +73,7 @@ class Agent(NamedTuple):
     policy: Callable[[Any], tuple[jax.Array, SolverInfo]]
     loss: Callable[[Any, Transitions], jax.Array]
     policies: Callable[[Any], tuple[jax.Array, SolverInfo]] | None = None
+    params: Callable[[Any], dict] | None = None
 
 
 class Row(NamedTuple):
@@ -112,12 +118,16 @@ class Diagnostics(NamedTuple):
 
 class Trace(NamedTuple):
     """All iterations of one cell: ``iteration [N]``, ``samples [N]`` (collected before the
-    policy of that iteration was solved) and ``rows`` (a :class:`Row` with leaves ``[S, N]``)."""
+    policy of that iteration was solved), ``rows`` (a :class:`Row` with leaves ``[S, N]``) and
+    ``final``: what the cell ended with, ``{name: [S, ...] array}``: ``K`` the last policy's
+    gains, the model's parameters (:attr:`Agent.params`), and ``best_K`` / ``history`` (every
+    policy) when the test policy is the best one or the mixture."""
 
     seeds: np.ndarray
     iteration: np.ndarray
     samples: np.ndarray
     rows: Row
+    final: dict | None = None
 
 
 class Cell(NamedTuple):
@@ -178,15 +188,18 @@ class EvalNoise(NamedTuple):
     select: jax.Array
 
 
-def noise_program(plant: LoopPlant, n_test: int, test_policy: str) -> Callable[..., EvalNoise]:
-    """The jitted ``keys [S] -> EvalNoise``: every seed's test noise from ``fold_in(k, 2)`` and,
-    for ``best``, its selection noise from ``fold_in(k, 3)``, ``[horizon, n_noise, S, n_test]``.
+def noise_program(
+    plant: LoopPlant, n_test: int, test_policy: str, stream: int = _TEST
+) -> Callable[..., EvalNoise]:
+    """The jitted ``keys [S] -> EvalNoise``: every seed's test noise from ``fold_in(k, stream)``
+    (2, or :data:`EVALUATE` for fresh noise) and, for ``best``, its selection noise from
+    ``fold_in(k, 3)``, ``[horizon, n_noise, S, n_test]``.
 
     Build it once per plant and shape and keep it (a family's setup does), so that every method
     of a run shares one compilation."""
 
     def one(key):
-        test = plant.eval_noise(jax.random.fold_in(key, _TEST), n_test)
+        test = plant.eval_noise(jax.random.fold_in(key, stream), n_test)
         if test_policy != "best":
             return EvalNoise(test, jnp.zeros((0,), test.dtype))
         return EvalNoise(test, plant.eval_noise(jax.random.fold_in(key, _SELECT), n_test))
@@ -257,7 +270,7 @@ def drive(
 ) -> list[Row]:
     """The Python loop over iterations that every runner shares: ``start() -> (carry, row)`` is
     iteration 1, ``step(carry, n) -> (carry, row)`` iteration n = 2..N; ``progress(n, row)``
-    after each. Returns the N rows."""
+    after each. Returns the last carry and the N rows."""
     carry, row = start()
     rows = [row]
     if progress:
@@ -267,7 +280,7 @@ def drive(
         rows.append(row)
         if progress:
             progress(n, row)
-    return rows
+    return carry, rows
 
 
 def _evaluate(plant: LoopPlant, carry: _Carry, K, keys, noise: EvalNoise, n, test_policy: str):
@@ -451,8 +464,15 @@ def run_learning(
     def one(carry, n):
         return step(carry, keys, noise, jnp.int32(n), jnp.float64(fractions[n - 1]), which)
 
-    rows = drive(lambda: start(keys, noise), one, iterations, progress)
-    return _trace(seeds, samples, rows)
+    carry, rows = drive(lambda: start(keys, noise), one, iterations, progress)
+    final = {"K": carry.K}
+    if agent.params is not None:
+        final |= jax.vmap(agent.params)(carry.learner)
+    if test_policy == "best":
+        final["best_K"] = carry.best_K
+    if test_policy == "mixture":
+        final["history"] = carry.history
+    return _trace(seeds, samples, rows, final)
 
 
 def run_fixed_policy(
@@ -488,12 +508,14 @@ def run_fixed_policy(
         )  # fmt: skip
 
     row = test(noise)
-    rows = drive(lambda: (None, row), lambda carry, n: (carry, row), iterations, progress)
-    return _trace(seeds, samples, rows)
+    _, rows = drive(lambda: (None, row), lambda carry, n: (carry, row), iterations, progress)
+    S = noise.shape[2]
+    return _trace(seeds, samples, rows, {"K": jnp.broadcast_to(K, (S, *K.shape))})
 
 
-def _trace(seeds, samples: int, rows: list[Row]) -> Trace:
+def _trace(seeds, samples: int, rows: list[Row], final: dict | None = None) -> Trace:
     stacked = jax.tree_util.tree_map(lambda *a: np.stack([np.asarray(x) for x in a], axis=1), *rows)
     n = len(rows)
     iteration = np.arange(1, n + 1)
-    return Trace(np.asarray(seeds), iteration, (iteration - 1) * samples, stacked)
+    final = None if final is None else {k: np.asarray(v) for k, v in final.items()}
+    return Trace(np.asarray(seeds), iteration, (iteration - 1) * samples, stacked, final)

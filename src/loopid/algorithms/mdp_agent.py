@@ -244,7 +244,11 @@ def mdp_agent(mdp: FiniteMDP, model: MDPModel, *, tol: float = 1e-10) -> Agent:
     def loss(state, batch):
         return model.row_loss(learner.weights(state), batch)
 
-    return Agent(init, update, policy, loss)
+    def params(state) -> dict:
+        """The learned transition model ``T̂ [S, A, S]``."""
+        return {"T_hat": model.transitions(learner.weights(state))}
+
+    return Agent(init, update, policy, loss, params=params)
 
 
 class _DiagState(NamedTuple):

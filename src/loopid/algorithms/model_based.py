@@ -107,4 +107,8 @@ def linear_agent(
         # the fallback's cond runs only for the seeds whose dlqr failed
         return jax.vmap(policy)(states) if tv else jax.lax.map(policy, states)
 
-    return Agent(init, update, policy, loss, policies)
+    def params(state: LinearAgentState) -> dict:
+        """The learned offsets ``W = [A' B']ᵀ`` (the model is the nominal plus them)."""
+        return {"W": state.W}
+
+    return Agent(init, update, policy, loss, policies, params)

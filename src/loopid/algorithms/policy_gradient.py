@@ -376,10 +376,10 @@ def run_policy_gradient(
     S = keys.shape[0]
     one = init_state(free, step * sigma * np.sqrt(m), probes=P)
     state = jax.tree_util.tree_map(lambda a: jnp.broadcast_to(a, (S, *a.shape)), one)
-    rows = drive(
+    state, rows = drive(
         lambda: (state, jax.jit(evaluate)(state.theta, noise)),
         lambda state, it: advance(state, keys, noise, jnp.int32(it)),
         iterations,
         progress,
     )
-    return _trace(np.asarray(seeds), samples, rows)
+    return _trace(np.asarray(seeds), samples, rows, {"K": base[None] + state.theta[:, None]})

@@ -14,13 +14,14 @@ import time
 import tomllib
 from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
-from typing import Any
+from typing import Any, NamedTuple
 
 import numpy as np
 import pyarrow as pa
 
 import loopid
 from loopid.algorithms.loop import Row
+from loopid.experiments import artifacts
 from loopid.experiments.config import seed_list
 from loopid.experiments.executors import (
     Job,
@@ -69,12 +70,21 @@ def resolved_config(scenarios: Sequence[Scenario], methods: Methods, seeds) -> d
     }
 
 
+class CellResult(NamedTuple):
+    """A finished cell: its rows (with its timings in the table's metadata) and what it ended
+    with (:attr:`loopid.algorithms.loop.Trace.final`, saved by :mod:`.artifacts`)."""
+
+    table: pa.Table
+    seeds: np.ndarray
+    final: dict
+
+
 def run_cell(
     s: Scenario, method: str, seeds, progress: Callable[[int, Row], None] | None = None
-) -> pa.Table:
-    """One cell's rows (:func:`loopid.experiments.results.trace_table`), with its timings in the
-    table's metadata: ``wall_s`` (the whole cell) and ``first_s`` (until iteration 2 was done:
-    compilation plus two iterations)."""
+) -> CellResult:
+    """One cell: its rows (:func:`loopid.experiments.results.trace_table`), with its timings in
+    the table's metadata: ``wall_s`` (the whole cell) and ``first_s`` (until iteration 2 was
+    done: compilation plus two iterations); and its final policies and models."""
     t0 = time.perf_counter()
     first = [None]
 
@@ -87,7 +97,8 @@ def run_cell(
     trace = family_of(s).run(method, s, seeds, progress=tick)
     wall = time.perf_counter() - t0
     table = trace_table(s.name, method, trace)
-    return with_metadata(table, wall_s=f"{wall:.3f}", first_s=f"{first[0] or wall:.3f}")
+    table = with_metadata(table, wall_s=f"{wall:.3f}", first_s=f"{first[0] or wall:.3f}")
+    return CellResult(table, np.asarray(trace.seeds), dict(trace.final or {}))
 
 
 def check_cells(scenarios: Sequence[Scenario], methods: Methods, seeds) -> np.ndarray:
@@ -142,7 +153,8 @@ def run_cells(
     (:func:`loopid.experiments.config.seed_list`; all scenarios of one run share the seeds).
     ``executor_name``: ``local`` or ``ray`` (``ray_address`` joins a cluster). ``workers``: the
     local executor's worker processes (1: in this process). Each finished cell is saved at once
-    (atomically); ``results.parquet`` is rewritten after every cell.
+    (atomically), its artifacts (:mod:`.artifacts`) before its rows; ``results.parquet`` is
+    rewritten after every cell.
     """
     seeds = check_cells(scenarios, methods, seeds)
     check_executor(executor_name, ray_address)
@@ -166,8 +178,11 @@ def run_cells(
                     log(f"{s.name} / {m}: already finished, skipped")
             else:
                 jobs.append(Job(s, m))
-    for job, table in executor(executor_name)(jobs, seeds, run_cell, on_cell=on_cell, **options):
-        rd.save_cell(job.scenario.name, job.method, table)
+    family = family_of(scenarios[0]).name
+    for job, done in executor(executor_name)(jobs, seeds, run_cell, on_cell=on_cell, **options):
+        name, table = job.scenario.name, done.table
+        artifacts.write(rd.cells, name, job.method, family, done.seeds, done.final)
+        rd.save_cell(name, job.method, table)  # last: a finished cell has its artifacts
         rd.write_results(order)
         if log:
             meta = rd.cell_metadata(job.scenario.name, job.method)

@@ -16,7 +16,8 @@
   machine's CPUs and shut down afterwards. Workers use the same compilation cache folder.
 
 An executor is a generator: ``executor(jobs, seeds, cell, on_cell=..., **options)`` yields
-``(job, table)`` as cells finish (in any order); the caller saves each at once.
+``(job, result)`` as cells finish (in any order), ``result`` being whatever the cell function
+returns (:class:`loopid.experiments.execute.CellResult`); the caller saves each at once.
 """
 
 import os
@@ -28,8 +29,6 @@ from contextlib import contextmanager, nullcontext
 from pathlib import Path
 from typing import Any, NamedTuple
 
-import pyarrow as pa
-
 EXECUTORS = ("local", "ray")
 
 
@@ -40,8 +39,8 @@ class Job(NamedTuple):
     method: str
 
 
-#: ``cell(scenario, method, seeds, progress=None) -> table`` (:func:`execute.run_cell`).
-CellFunction = Callable[..., pa.Table]
+#: ``cell(scenario, method, seeds, progress=None) -> result`` (:func:`execute.run_cell`).
+CellFunction = Callable[..., Any]
 
 
 def compile_cache(path: str | os.PathLike | None = None) -> str:
@@ -121,7 +120,7 @@ def run_local(
     *,
     on_cell: Callable | None = None,
     workers: int = 1,
-) -> Iterator[tuple[Job, pa.Table]]:
+) -> Iterator[tuple[Job, Any]]:
     """Compute the cells on this machine; ``on_cell(scenario, method, iterations)`` returns a
     per-iteration progress callback (or None), called when the cell starts.
 
@@ -169,7 +168,7 @@ def _init_worker(cache_dir: str, messages, parent: int) -> None:
     threading.Thread(target=watch, daemon=True).start()
 
 
-def _pool_cell(cell: CellFunction, index: int, s, method: str, seeds) -> pa.Table:
+def _pool_cell(cell: CellFunction, index: int, s, method: str, seeds):
     """One cell in a worker; progress goes back to the parent as ``(index, n, row)``, with
     ``n = 0`` (no row) when the cell starts."""
     import jax
@@ -186,7 +185,7 @@ def _pool_cell(cell: CellFunction, index: int, s, method: str, seeds) -> pa.Tabl
     return cell(s, method, seeds, progress=progress)
 
 
-def _run_pool(jobs, seeds, cell, on_cell, workers) -> Iterator[tuple[Job, pa.Table]]:
+def _run_pool(jobs, seeds, cell, on_cell, workers) -> Iterator[tuple[Job, Any]]:
     import multiprocessing
     from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
 
@@ -231,9 +230,9 @@ def _run_pool(jobs, seeds, cell, on_cell, workers) -> Iterator[tuple[Job, pa.Tab
             done, pending = wait(pending, timeout=0.1, return_when=FIRST_COMPLETED)
             drain()
             for future in sorted(done, key=futures.get):
-                table = future.result()
+                result = future.result()
                 drain(until=futures[future])
-                yield jobs[futures[future]], table
+                yield jobs[futures[future]], result
     finally:
         processes = list((getattr(pool, "_processes", None) or {}).values())
         pool.shutdown(wait=False, cancel_futures=True)
@@ -242,7 +241,7 @@ def _run_pool(jobs, seeds, cell, on_cell, workers) -> Iterator[tuple[Job, pa.Tab
                 p.terminate()
 
 
-def _ray_cell(cell: CellFunction, s, method: str, seeds, cache_dir: str) -> pa.Table:
+def _ray_cell(cell: CellFunction, s, method: str, seeds, cache_dir: str):
     """The body of one Ray task (runs in a worker process): ``cell`` (a module-level function,
     pickled by name) on one scenario and method."""
     import loopid  # noqa: F401  (float64 on)
@@ -259,7 +258,7 @@ def run_ray(
     on_cell: Callable | None = None,
     address: str | None = None,
     num_cpus: int | None = None,
-) -> Iterator[tuple[Job, pa.Table]]:
+) -> Iterator[tuple[Job, Any]]:
     """Compute each cell as a Ray task; yield them as they finish.
 
     ``address``: an existing cluster (``ray.init(address=...)``); otherwise a local Ray with
@@ -312,7 +311,7 @@ def ray_session(address: str | None = None, num_cpus: int | None = None):
         ray.shutdown()
 
 
-def executor(name: str) -> Callable[..., Iterator[tuple[Job, pa.Table]]]:
+def executor(name: str) -> Callable[..., Iterator[tuple[Job, Any]]]:
     """The executor called ``name`` (:data:`EXECUTORS`)."""
     check_executor(name)
     return {"local": run_local, "ray": run_ray}[name]

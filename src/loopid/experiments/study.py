@@ -147,10 +147,15 @@ def share_cells(out: Path, reproduce: Path, scenarios: Sequence[Scenario], seeds
             continue
         for f in sorted(theirs.cells.glob(f"{s.name}__*.parquet")):
             target = ours.cells / f.name
-            if not target.exists():
-                shutil.copy2(f, target.with_name(f".{f.name}.tmp"))
-                target.with_name(f".{f.name}.tmp").replace(target)
-                copied.append(f.name)
+            if target.exists():
+                continue
+            # the artifacts first, the rows last: a copied cell is finished with everything
+            for part in (f.with_suffix(".npz"), f.with_suffix(".json"), f):
+                if part.exists():
+                    tmp = ours.cells / f".{part.name}.tmp"
+                    shutil.copy2(part, tmp)
+                    tmp.replace(ours.cells / part.name)
+            copied.append(f.name)
     return copied
 
 

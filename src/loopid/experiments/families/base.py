@@ -48,6 +48,12 @@ class Family:
         (Markdown lines), after the common header, configuration and wall time.
       check: ``check(config)``: checks that need the system itself (sizes against a Gymnasium
         env, say), run before anything is written; None when the config checks itself.
+      load: ``load(config, method, arrays) -> (model, controller)``: one seed's saved final
+        arrays (:mod:`loopid.experiments.artifacts`) rebuilt in the system's coordinates
+        (:mod:`loopid.experiments.saved`); None when the family cannot.
+      evaluate: ``evaluate(config, K [S, ...], seeds, episodes, env) -> costs [S, episodes]``:
+        saved policies on fresh test episodes (noise the run never saw; ``env``: another
+        Gymnasium id, gym only); None when the family cannot.
     """
 
     name: str
@@ -61,6 +67,8 @@ class Family:
     figure: Callable[[pa.Table, Path, Mapping[str, Any]], None]
     report: Callable[[pa.Table, Mapping[str, Any]], list[str]]
     check: Callable[[Any], None] | None = None
+    load: Callable[[Any, str, dict], tuple[Any, Any]] | None = None
+    evaluate: Callable[..., Any] | None = None
 
     def field_names(self) -> tuple[str, ...]:
         """The config dataclass's field names."""

@@ -35,11 +35,13 @@ import numpy as np
 import pyarrow as pa
 
 from loopid.algorithms.host_loop import (
+    EVALUATE,
     Exploration,
     gym_agent,
     make_host_cell,
     nominal_model,
     run_learning_host,
+    test_episodes,
 )
 from loopid.algorithms.loop import Trace
 from loopid.algorithms.methods import policy_fractions
@@ -424,6 +426,47 @@ def report(table: pa.Table, configs) -> list[str]:
     return final_cost_sections(table, notes)
 
 
+def load(s: GymScenario, method: str, arrays: dict):
+    """One seed's saved model and controller in the env's coordinates: ``a = a_op − K_t [o[observe]
+    − o*; 1]`` (the env is made once to read its sizes and operating action, then closed)."""
+    from loopid.experiments.learned import GainController, LinearModel
+
+    system = make_system(s)
+    try:
+        shape = _shape(system)
+        observe = system.observe
+    finally:
+        system.close()
+    target = np.asarray(shape.target)
+
+    def error(obs, t):
+        o = obs if observe is None else obs[np.asarray(observe)]
+        return np.concatenate([o - target, [1.0]])
+
+    model = None
+    if "W" in arrays:
+        nominal = _checked("model", nominal_model, shape, thaw(s.A), thaw(s.B),
+                           time_varying=s.time_varying)  # fmt: skip
+        model = LinearModel(nominal, arrays["W"])
+    return model, GainController(arrays["K"], error, np.asarray(shape.a_op))
+
+
+def evaluate(s: GymScenario, K, seeds, episodes: int, env=None) -> np.ndarray:
+    """Capped test costs ``[S, episodes]`` of policies ``K [S, T, m, n]`` on fresh episodes
+    (slot stream 4); ``env``: fly them on another Gymnasium id (transfer) with the same
+    observation indices, target and costs."""
+    if env is not None:
+        s = s.replace(env_id=env)
+    system = make_system(s)
+    try:
+        _, _, _, test_cost = _parts(s, system)
+        costs, _ = test_episodes(system, np.asarray(K), [int(x) for x in seeds], episodes,
+                                 test_cost, s.termination, s.cost_cap, stream=EVALUATE)  # fmt: skip
+    finally:
+        system.close()
+    return costs
+
+
 FAMILY = Family(
     name="gym",
     config=GymScenario,
@@ -436,4 +479,6 @@ FAMILY = Family(
     figure=figure,
     report=report,
     check=check,
+    load=load,
+    evaluate=evaluate,
 )

@@ -26,9 +26,11 @@ import numpy as np
 from loopid.algorithms import methods as M
 from loopid.algorithms.expert import expert_gains
 from loopid.algorithms.loop import (
+    EVALUATE,
     Agent,
     Trace,
     make_cell,
+    noise_program,
     run_fixed_policy,
     run_learning,
     seed_keys,
@@ -184,6 +186,35 @@ def figure(table, path, configs) -> None:
     figure2(table, path)
 
 
+def load(s: Scenario, method: str, arrays: dict):
+    """One seed's saved model and controller (:mod:`loopid.experiments.saved`): the gains act on
+    ``to_error(x_t, x*_t)`` and give the control change Δu (the Gymnasium envs' action)."""
+    from loopid.experiments.learned import GainController, LinearModel
+
+    st = setup(s)
+    target = np.asarray(st.plant.task.target)
+    T = target.shape[0] - 1
+
+    def error(x, t):
+        return np.asarray(helicopter.to_error(x, target[min(t, T)]))
+
+    delay = st.plant.task.delay if s.delay_mode == "latency" else 0
+    controller = GainController(arrays["K"], error, np.zeros(helicopter.N_ACTION), delay)
+    model = LinearModel(st.nominal, arrays["W"]) if "W" in arrays else None
+    return model, controller
+
+
+def evaluate(s: Scenario, K, seeds, episodes: int, env=None) -> np.ndarray:
+    """Capped test costs ``[S, episodes]`` of policies ``K [S, T, m, n]`` on fresh noise
+    (``fold_in(key(seed), 4)``), flown as the run flew them (its delay reading included)."""
+    if env is not None:
+        raise ValueError(f"--env {env!r} applies to gym runs, not to {s.name}")
+    plant = setup(s).plant
+    noise = noise_program(plant, episodes, "last", EVALUATE)(seed_keys(seeds)).test
+    costs, _ = jax.jit(plant.eval_seeds)(jax.numpy.asarray(K), noise)
+    return np.asarray(costs)
+
+
 FAMILY = Family(
     name="helicopter",
     config=Scenario,
@@ -195,4 +226,6 @@ FAMILY = Family(
     run=run,
     figure=figure,
     report=report,
+    load=load,
+    evaluate=evaluate,
 )

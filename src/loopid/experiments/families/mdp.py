@@ -335,6 +335,23 @@ def _build(name: str, changes: dict) -> MDPScenario:
     return _scenario(name).replace(**changes)
 
 
+def load(s: MDPScenario, method: str, arrays: dict):
+    """One seed's saved policy ``K [S, A]`` and learned ``T̂ [S, A, S]``."""
+    from loopid.experiments.learned import TableController, TableModel
+
+    return TableModel(arrays["T_hat"]), TableController(arrays["K"])
+
+
+def evaluate(s: MDPScenario, K, seeds, episodes: int, env=None) -> np.ndarray:
+    """The exact ``J_μ(π)`` of each saved policy ``K [S, n_states, n_actions]``, repeated
+    ``episodes`` times (no sampling: the evaluation is exact)."""
+    if env is not None:
+        raise ValueError(f"--env {env!r} applies to gym runs, not to {s.name}")
+    plant = mdp_setup(s).plant
+    J = jax.jit(jax.vmap(lambda k: plant.eval_one(k, None)[0]))(jax.numpy.asarray(K))
+    return np.repeat(np.asarray(J)[:, None], episodes, axis=1)
+
+
 FAMILY = Family(
     name="mdp",
     config=MDPScenario,
@@ -346,4 +363,6 @@ FAMILY = Family(
     run=lambda method, s, seeds=None, progress=None: run_mdp(method, s, seeds, progress),
     figure=lambda table, path, configs: mdp_figure(table, path),
     report=report,
+    load=load,
+    evaluate=evaluate,
 )

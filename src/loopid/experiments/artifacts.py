@@ -1,0 +1,92 @@
+"""What a cell ends with, kept: the final policy and the learned model of every seed.
+
+Each finished cell of a run directory has, beside its rows (``cells/S__M.parquet``)::
+
+    cells/S__M.npz    the arrays of :attr:`loopid.algorithms.loop.Trace.final`, each [S, ...]
+                      with the seeds along the first axis (``seeds`` [S]): ``K`` the last
+                      policy's gains, the model's parameters (``W`` for a linear offset model,
+                      ``T_hat`` for a finite MDP's), ``best_K`` / ``history`` when the test
+                      policy selects them
+    cells/S__M.json   what they are: format version, family, scenario, method, seeds, and each
+                      array's name, shape and dtype
+
+Format: NumPy's ``.npz`` (uncompressed), which stores float64 exactly, needs no dependency
+beyond NumPy and is read by any NumPy (``np.load``); safetensors would add a dependency and
+gain nothing for a handful of dense arrays. Both files are written through a temporary name and
+a rename before the cell's Parquet file, so a finished cell always has its artifacts and a
+killed run leaves no half-written one. A file that is missing or unreadable raises one line
+naming it (:func:`read`).
+"""
+
+import json
+import os
+from pathlib import Path
+
+import numpy as np
+
+#: The artifact format's version, in every ``.json``.
+FORMAT = 1
+
+
+def paths(cells: Path, scenario: str, method: str) -> tuple[Path, Path]:
+    """``(npz, json)`` of one cell."""
+    stem = Path(cells) / f"{scenario}__{method}"
+    return stem.with_suffix(".npz"), stem.with_suffix(".json")
+
+
+def _replace(write, path: Path) -> None:
+    tmp = path.with_name(f".{path.name}.tmp-{os.getpid()}")
+    write(tmp)
+    os.replace(tmp, path)
+
+
+def write(cells: Path, scenario: str, method: str, family: str, seeds, final: dict) -> None:
+    """Write one cell's artifacts (module docstring); ``final``: ``{name: [S, ...] array}``."""
+    seeds = np.asarray(seeds, dtype=np.int64)
+    arrays = {name: np.asarray(v) for name, v in final.items()}
+    for name, v in arrays.items():
+        if v.shape[:1] != seeds.shape:
+            raise ValueError(f"artifact {name!r} has shape {v.shape}, not [{seeds.size}, ...]")
+    npz, meta = paths(cells, scenario, method)
+
+    def save_npz(tmp: Path) -> None:
+        with open(tmp, "wb") as f:
+            np.savez(f, seeds=seeds, **arrays)
+
+    _replace(save_npz, npz)
+    info = {
+        "format": FORMAT,
+        "family": family,
+        "scenario": scenario,
+        "method": method,
+        "seeds": seeds.tolist(),
+        "arrays": {n: {"shape": list(v.shape), "dtype": str(v.dtype)} for n, v in arrays.items()},
+    }
+    _replace(lambda tmp: tmp.write_text(json.dumps(info, indent=1) + "\n"), meta)
+
+
+def read(cells: Path, scenario: str, method: str) -> tuple[dict, dict[str, np.ndarray]]:
+    """``(info, arrays)`` of one cell; ``ValueError`` with one line naming a missing or
+    unreadable file, or arrays that do not match their description."""
+    npz, meta = paths(cells, scenario, method)
+    for f in (meta, npz):
+        if not f.is_file():
+            raise ValueError(f"{str(f)!r} is missing: the cell has no saved model and policy")
+    try:
+        info = json.loads(meta.read_text())
+        if info.get("format") != FORMAT:
+            raise ValueError(f"format {info.get('format')!r}, not {FORMAT}")
+        with np.load(npz, allow_pickle=False) as data:
+            arrays = {name: data[name] for name in data.files}
+    except (OSError, ValueError, KeyError, EOFError) as e:
+        bad = meta if isinstance(e, json.JSONDecodeError) else npz
+        what = " ".join(str(e).split()) or type(e).__name__
+        raise ValueError(f"{str(bad)!r} is not a readable loopid artifact ({what})") from None
+    seeds = arrays.pop("seeds", None)
+    expected = info.get("arrays", {})
+    if seeds is None or seeds.tolist() != info.get("seeds") or set(arrays) != set(expected):
+        raise ValueError(f"{str(npz)!r} does not match {str(meta)!r}")
+    for name, v in arrays.items():
+        if list(v.shape) != expected[name]["shape"] or str(v.dtype) != expected[name]["dtype"]:
+            raise ValueError(f"{str(npz)!r}: array {name!r} does not match {str(meta)!r}")
+    return info, {"seeds": seeds, **arrays}
