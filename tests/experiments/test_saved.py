@@ -208,3 +208,9 @@ def test_loopid_evaluate_reports_the_recorded_cost_within_its_standard_error(tmp
         assert e.value.code == 2
         err = capsys.readouterr().err.strip().splitlines()
         assert len(err) == 1 and needle in err[0], err
+    (out / "cells" / "hover__pg.npz").write_bytes(b"\x00" * 64)  # a corrupt artifact
+    with pytest.raises(SystemExit) as e:
+        main(["evaluate", str(out), "--method", "pg"])
+    assert e.value.code == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "hover__pg.npz" in err[0] and "Traceback" not in err[0], err

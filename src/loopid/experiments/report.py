@@ -20,8 +20,10 @@ import loopid
 from loopid.experiments.findings import Costs, _g
 
 
-def cell_times(run_dir: Path) -> dict[tuple[str, str], tuple[float, float]]:
-    """``{(scenario, method): (wall_s, first_s)}`` recorded by the finished cells of a run."""
+def cell_times(run_dir: Path) -> dict[tuple[str, str], tuple[float, float, float]]:
+    """``{(scenario, method): (wall_s, first_s, artifacts_s)}`` recorded by the finished cells
+    of a run (``artifacts_s``: writing the cell's saved policies and models; 0 if not
+    recorded)."""
     from loopid.experiments.results import metadata
 
     out = {}
@@ -29,7 +31,11 @@ def cell_times(run_dir: Path) -> dict[tuple[str, str], tuple[float, float]]:
         meta = metadata(f)
         if "wall_s" in meta:
             s, m = f.stem.split("__", 1)
-            out[(s, m)] = (float(meta["wall_s"]), float(meta.get("first_s", meta["wall_s"])))
+            out[(s, m)] = (
+                float(meta["wall_s"]),
+                float(meta.get("first_s", meta["wall_s"])),
+                float(meta.get("artifacts_s", 0.0)),
+            )
     return out
 
 
@@ -103,14 +109,16 @@ def report_text(
     if command_s is not None:
         L.append(f"- this command: {command_s:.1f} s ({machine})")
     if times:
-        wall = sum(w for w, _ in times.values())
-        first = sum(f for _, f in times.values())
+        wall = sum(t[0] for t in times.values())
+        first = sum(t[1] for t in times.values())
+        saving = sum(t[2] for t in times.values())
         L += [
             f"- cells: {len(times)}, {wall:.1f} s in all as recorded by each cell "
             f"(cells skipped on resume keep the time of the run that computed them; cells "
             f"computed by parallel workers overlap, so the sum can exceed the command's time)",
             f"- of which until each cell's iteration 2 (compilation, or loading it from the "
             f"cache, plus two iterations): {first:.1f} s; after it: {wall - first:.1f} s",
+            f"- saving the cells' final policies and models (`cells/*.npz`): {saving:.1f} s",
         ]
     L.append("")
     L += sections
