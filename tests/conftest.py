@@ -1,5 +1,10 @@
 """Strict numerics for every test: float64, strict dtype promotion, warnings as errors."""
 
+import os
+import subprocess
+import sys
+from pathlib import Path
+
 import jax
 import numpy as np
 import pytest
@@ -24,3 +29,19 @@ def tree_allclose(a, b, *, rtol=1e-10, atol=1e-12) -> bool:
 def rng():
     """A NumPy generator with a fixed seed, for test data."""
     return np.random.default_rng(0)
+
+
+@pytest.fixture(scope="session")
+def cache(tmp_path_factory) -> Path:
+    """One JAX compilation cache for the session's command-line runs (only the first compiles)."""
+    return tmp_path_factory.mktemp("jax-cache")
+
+
+def cli(*args, cache: Path, **popen):
+    """``python -m loopid ARGS`` with ``cache`` as its compilation cache: the finished process
+    (output captured), or with ``popen`` keywords the running one."""
+    env = dict(os.environ, LOOPID_JAX_CACHE=str(cache))
+    command = [sys.executable, "-m", "loopid", *map(str, args)]
+    if popen:
+        return subprocess.Popen(command, env=env, **popen)
+    return subprocess.run(command, capture_output=True, text=True, env=env, timeout=900)

@@ -3,11 +3,9 @@
 The slow tests share one JAX compilation cache (``cache``), so only the first compiles.
 """
 
-import os
 import re
 import signal
 import subprocess
-import sys
 import time
 from pathlib import Path
 
@@ -16,23 +14,11 @@ import pyarrow.parquet as pq
 import pytest
 
 import loopid
+from conftest import cli
 from loopid.algorithms.methods import METHODS
 from loopid.cli import main
 from loopid.experiments.results import SCHEMA
 from loopid.experiments.scenarios import SCENARIOS
-
-
-@pytest.fixture(scope="session")
-def cache(tmp_path_factory) -> Path:
-    return tmp_path_factory.mktemp("jax-cache")
-
-
-def cli(*args, cache: Path, **popen):
-    env = dict(os.environ, LOOPID_JAX_CACHE=str(cache))
-    command = [sys.executable, "-m", "loopid", *map(str, args)]
-    if popen:
-        return subprocess.Popen(command, env=env, **popen)
-    return subprocess.run(command, capture_output=True, text=True, env=env, timeout=900)
 
 
 def test_version(tmp_path):

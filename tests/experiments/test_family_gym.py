@@ -1,7 +1,6 @@
 """The gym family through the one pipeline: the Pendulum example end to end with workers and
 Ray, resume after a kill, the common options, bad files (one line, nothing written)."""
 
-import os
 import signal
 import subprocess
 import sys
@@ -13,6 +12,7 @@ import numpy as np
 import pyarrow.parquet as pq
 import pytest
 
+from conftest import cli
 from loopid.cli import scenario_from_options
 from loopid.experiments.execute import check_cells
 from loopid.experiments.families import gym
@@ -35,19 +35,6 @@ def write(tmp_path: Path, name: str, change=None, drop=()) -> Path:
     path = tmp_path / name
     path.write_text(to_toml(cfg))
     return path
-
-
-@pytest.fixture(scope="module")
-def cache(tmp_path_factory) -> Path:
-    return tmp_path_factory.mktemp("jax-cache")
-
-
-def cli(*args, cache: Path, **popen):
-    env = dict(os.environ, LOOPID_JAX_CACHE=str(cache))
-    command = [sys.executable, "-m", "loopid", *map(str, args)]
-    if popen:
-        return subprocess.Popen(command, env=env, **popen)
-    return subprocess.run(command, capture_output=True, text=True, env=env, timeout=600)
 
 
 def by_method(table, method: str) -> np.ndarray:
