@@ -214,3 +214,55 @@ def test_loopid_evaluate_reports_the_recorded_cost_within_its_standard_error(tmp
     assert e.value.code == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "hover__pg.npz" in err[0] and "Traceback" not in err[0], err
+
+
+@pytest.mark.parametrize("delay_mode", ["fifo", "latency"])
+def test_the_flown_path_costs_what_the_plant_charged(delay_mode):
+    """flights.fly keeps the states of the plant's own test trajectory: its cost, recomputed
+    from those states, is the plant's test cost of the same policy and noise (an independent
+    recomputation: SPEC §4.1's sum, not the plant's scan)."""
+    from loopid.experiments.flights import fly
+    from loopid.systems.tasks import trajectory_cost
+
+    s = scenario("hover-delay", delay_mode=delay_mode)
+    st = helicopter.setup(s)
+    task, K = st.plant.task, np.asarray(st.K_expert)
+    noise = st.plant.eval_noise(__import__("jax").random.key(5), 1)[0]
+    X = fly(task, K, noise, delay_mode)
+    target = np.asarray(task.target)
+    dX = np.stack([np.asarray(h.to_error(x, xs)) for x, xs in zip(X, target, strict=True)])
+    T, d = K.shape[0], task.delay
+    if delay_mode == "fifo":  # the commanded changes
+        dU = np.stack([-K[t] @ dX[t] for t in range(T)])
+    else:  # the applied ones: the policy acts on the error of d steps earlier
+        dU = np.stack([-K[t - d] @ dX[t - d] if t >= d else np.zeros(4) for t in range(T)])
+    cost = float(trajectory_cost(dX, dU, task.Q, task.R))
+    expected, _ = st.plant.eval_costs(K, noise[None])
+    np.testing.assert_allclose(cost, float(expected[0]), rtol=1e-9)
+
+
+@pytest.mark.slow
+def test_trajectories_png_and_animate(hover_run, tmp_path, capsys):
+    from loopid.cli import main
+    from loopid.experiments.execute import write_outputs
+
+    out, table = hover_run
+    write_outputs(out, table)
+    assert (out / "trajectories.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    gif = tmp_path / "a.gif"
+    with pytest.raises(SystemExit) as e:
+        main(["animate", str(out), "--method", "expert,pg", "--seed", "1", "--out", str(gif)])
+    assert e.value.code == 0
+    from PIL import Image
+
+    with Image.open(gif) as im:
+        assert im.format == "GIF" and im.n_frames >= 50
+    capsys.readouterr()
+    for bad, needle in ((["--method", "nope"], "'nope'"),
+                        (["--method", "expert", "--seed", "9"], "seed 9"),
+                        (["--method", "expert", "--scenario", "funnel"], "'funnel'")):  # fmt: skip
+        with pytest.raises(SystemExit) as e:
+            main(["animate", str(out), "--out", str(tmp_path / "b.gif"), *bad])
+        assert e.value.code == 2
+        err = capsys.readouterr().err.strip().splitlines()
+        assert len(err) == 1 and needle in err[0], err

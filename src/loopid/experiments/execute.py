@@ -216,7 +216,8 @@ def run_family(run_dir) -> tuple[Family | None, dict[str, Scenario]]:
 
 
 def write_outputs(run_dir, table: pa.Table, command_s: float | None = None) -> None:
-    """``figure.png`` and ``report.md`` of a run directory, drawn by its family. Without a
+    """``figure.png``, ``trajectories.png`` (what the saved final policies fly, for the families
+    that draw it) and ``report.md`` of a run directory, drawn by its family. Without a
     ``config.toml`` (a bare ``results.parquet``): the family and packaged configs of the table's
     scenario names, the helicopter's when no name is registered."""
     run_dir = Path(run_dir)
@@ -227,6 +228,8 @@ def write_outputs(run_dir, table: pa.Table, command_s: float | None = None) -> N
         family = next((names[s] for s in present if s in names), FAMILIES["helicopter"])
         configs = {s: family.scenarios[s] for s in present if s in family.scenarios}
     family.figure(table, run_dir / "figure.png", configs)
+    if family.trajectories is not None and (run_dir / "config.toml").is_file():
+        family.trajectories(run_dir, configs, run_dir / "trajectories.png")
     cfg_file = run_dir / "config.toml"
     text = report_text(
         table,

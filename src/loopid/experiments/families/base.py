@@ -51,6 +51,10 @@ class Family:
       load: ``load(config, method, arrays) -> (model, controller)``: one seed's saved final
         arrays (:mod:`loopid.experiments.artifacts`) rebuilt in the system's coordinates
         (:mod:`loopid.experiments.saved`); None when the family cannot.
+      trajectories: ``trajectories(run_dir, configs, path)``: ``trajectories.png``, what each
+        method's saved final policy flies; None when the family draws none.
+      animate: ``animate(run_dir, config, methods, seed, path)``: an animated GIF of those
+        policies flying; None when the family cannot.
       evaluate: ``evaluate(config, K [S, ...], seeds, episodes, env) -> costs [S, episodes]``:
         saved policies on fresh test episodes (noise the run never saw; ``env``: another
         Gymnasium id, gym only); None when the family cannot.
@@ -69,6 +73,8 @@ class Family:
     check: Callable[[Any], None] | None = None
     load: Callable[[Any, str, dict], tuple[Any, Any]] | None = None
     evaluate: Callable[..., Any] | None = None
+    trajectories: Callable[..., Any] | None = None
+    animate: Callable[..., Any] | None = None
 
     def field_names(self) -> tuple[str, ...]:
         """The config dataclass's field names."""

@@ -18,6 +18,7 @@ one compilation and renamed copies of a panel (the readings study) share it too.
 """
 
 from functools import lru_cache
+from pathlib import Path
 from typing import NamedTuple
 
 import jax
@@ -215,6 +216,64 @@ def evaluate(s: Scenario, K, seeds, episodes: int, env=None) -> np.ndarray:
     return np.asarray(costs)
 
 
+def _flights(run_dir, s: Scenario, methods, seed: int) -> dict:
+    """``{method: X [T+1, 21]}``: each method's saved final policy at ``seed`` flying the run's
+    first test trajectory of that seed (its noise), from the task's start."""
+    from loopid.experiments import artifacts
+    from loopid.experiments.flights import fly
+
+    plant = setup(s).plant
+    key = jax.random.fold_in(jax.random.key(int(seed)), 2)  # the loop's test-noise stream
+    noise = plant.eval_noise(key, 1)[0]
+    flights = {}
+    for m in methods:
+        _, arrays = artifacts.read(Path(run_dir) / "cells", s.name, m)
+        seeds = arrays["seeds"].tolist()
+        if int(seed) not in seeds:
+            raise ValueError(f"seed {seed!r} is not in {s.name}/{m}; its seeds: {seeds}")
+        K = arrays["K"][seeds.index(int(seed))]
+        flights[m] = fly(plant.task, K, noise, s.delay_mode)
+    return flights
+
+
+def _saved_methods(run_dir, name: str) -> list[str]:
+    found = sorted(
+        p.stem.split("__", 1)[1] for p in (Path(run_dir) / "cells").glob(f"{name}__*.json")
+    )
+    return [m for m in M.METHODS if m in found]
+
+
+def trajectories(run_dir, configs: dict[str, Scenario], path) -> None:
+    """``trajectories.png``: per panel, what each method's final policy flies at the first
+    seed (:mod:`loopid.experiments.flights`)."""
+    from loopid.experiments import artifacts
+    from loopid.experiments.flights import trajectories_figure
+
+    panels = []
+    for name, s in configs.items():
+        methods = _saved_methods(run_dir, name)
+        if methods:
+            info, _ = artifacts.read(Path(run_dir) / "cells", name, methods[0])
+            seed = info["seeds"][0]
+            flights = _flights(run_dir, s, methods, seed)
+            panels.append((setup(s).plant.task, flights, f"{name}, seed {seed}"))
+    if panels:
+        trajectories_figure(panels, path)
+
+
+def animate(run_dir, s: Scenario, methods, seed: int, path) -> None:
+    """An animated GIF of the methods' saved final policies flying scenario ``s`` at ``seed``."""
+    from loopid.experiments.flights import animate as animate_flights
+
+    saved = _saved_methods(run_dir, s.name)
+    for m in methods:
+        if m not in saved:
+            raise ValueError(
+                f"{s.name} has no saved policy of method {m!r}; it has {', '.join(saved)}"
+            )
+    animate_flights(setup(s).plant.task, _flights(run_dir, s, methods, seed), path)
+
+
 FAMILY = Family(
     name="helicopter",
     config=Scenario,
@@ -228,4 +287,6 @@ FAMILY = Family(
     report=report,
     load=load,
     evaluate=evaluate,
+    trajectories=trajectories,
+    animate=animate,
 )

@@ -1,0 +1,167 @@
+"""What a learned policy actually flies: the helicopter's closed-loop path under a saved policy,
+``trajectories.png`` of a helicopter run, and ``loopid animate``'s GIF.
+
+:func:`fly` is the test trajectory of :mod:`loopid.algorithms.plant` with its states kept: from
+the task's start ``x_0``, ``Δu_t = −K_t Δx_t`` (under the ``latency`` reading ``−K_{t−d}
+Δx_{t−d}``, applied at once; under ``fifo`` applied d steps later), process noise ``[T, 6]``,
+one ``lax.scan``. The figures use one test trajectory's noise of the seed (the run's own first
+test trajectory), the same for every method, so the paths differ by the policy alone.
+
+- hover: position error (m) and attitude error (the error quaternion's vector part, ≈ half the
+  rotation angle in rad) over time, per method;
+- funnel: the flown path seen from above (east against north) beside the target circle, and
+  the altitude over time.
+"""
+
+import functools
+from pathlib import Path
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from loopid.systems import helicopter as h
+
+
+def fly(task, K, noise, delay_mode: str = "fifo") -> np.ndarray:
+    """States ``X [T+1, 21]`` of policy ``K [T, 4, 21]`` flying ``task`` under ``noise [T, 6]``."""
+    d = int(task.delay)
+    latency = delay_mode == "latency" and d > 0
+    X = _fly(jnp.asarray(task.target), jnp.asarray(task.x0), jnp.asarray(K), jnp.asarray(noise),
+             d=d, latency=latency)  # fmt: skip
+    return np.asarray(X)
+
+
+@functools.partial(jax.jit, static_argnames=("d", "latency"))
+def _fly(target, x0, K, noise, *, d: int, latency: bool):
+    T = K.shape[0]
+
+    def body(carry, inp):
+        x, fifo, seen = carry
+        t, w = inp
+        dx = h.to_error(x, target[t])
+        if latency:
+            seen = jnp.concatenate([seen[1:], dx[None]], axis=0)  # seen[0] is Δx_{t−d}
+            du = jnp.where(t >= d, -K[jnp.maximum(t - d, 0)] @ seen[0], 0.0)
+            x, _ = h.step_delayed(x, jnp.zeros((0, h.N_ACTION)), du, w)
+        else:
+            x, fifo = h.step_delayed(x, fifo, -K[t] @ dx, w)
+        return (x, fifo, seen), x
+
+    fifo0 = jnp.zeros((0 if latency else d, h.N_ACTION))
+    seen0 = jnp.zeros((d + 1, h.N_STATE))
+    _, X = jax.lax.scan(body, (x0, fifo0, seen0), (jnp.arange(T), noise[:T]))
+    return jnp.concatenate([x0[None], X], axis=0)
+
+
+def errors(task, X) -> tuple[np.ndarray, np.ndarray]:
+    """Position error ``[T+1, 3]`` (m, NED) and attitude error ``[T+1, 3]`` of states ``X``."""
+    target = np.asarray(task.target)[: X.shape[0]]
+    dX = np.asarray(jax.vmap(h.to_error)(jnp.asarray(X), jnp.asarray(target)))
+    return dX[:, h.NED], dX[:, 17:20]
+
+
+def trajectories_figure(panels: list[tuple], path) -> Path:
+    """``trajectories.png``: one row per ``(task, flights, title)`` panel, ``flights``
+    ``{label: X [T+1, 21]}`` against the task's target (module docstring)."""
+    import io
+
+    import matplotlib
+
+    matplotlib.use("Agg", force=True)
+    import matplotlib.pyplot as plt
+
+    from loopid.experiments.results import write_atomic_bytes
+
+    fig, grid = plt.subplots(
+        len(panels), 2, figsize=(11, 4.0 * len(panels)), squeeze=False, layout="constrained"
+    )
+    for axes, (task, flights, title) in zip(grid, panels, strict=True):
+        _panel(axes, task, flights, title)
+    buf = io.BytesIO()
+    fig.savefig(buf, format="png", dpi=100)
+    plt.close(fig)
+    path = Path(path)
+    write_atomic_bytes(buf.getvalue(), path)
+    return path
+
+
+def _panel(axes, task, flights, title) -> None:
+    target = np.asarray(task.target)
+    dt = h.DT
+    if task.time_varying:  # the funnel: top view and altitude
+        ax, ax_alt = axes
+        ned = target[:, h.NED]
+        ax.plot(ned[:, 1], ned[:, 0], "k--", lw=1.0, label="target")
+        ax_alt.plot(np.arange(len(ned)) * dt, -ned[:, 2], "k--", lw=1.0, label="target")
+        for k, (label, X) in enumerate(flights.items()):
+            p = np.where(np.isfinite(X[:, h.NED]), X[:, h.NED], np.nan)
+            p = np.where(np.abs(p) < 1e3, p, np.nan)  # a diverged flight leaves the axes
+            ax.plot(p[:, 1], p[:, 0], color=f"C{k}", lw=1.2, label=label)
+            ax_alt.plot(np.arange(len(p)) * dt, -p[:, 2], color=f"C{k}", lw=1.0, label=label)
+        ax.set(xlabel="east (m)", ylabel="north (m)", title=f"{title}: path from above")
+        ax.set_aspect("equal", adjustable="datalim")
+        ax_alt.set(xlabel="time (s)", ylabel="altitude (m)", title=f"{title}: altitude")
+    else:  # hover: position and attitude errors over time
+        ax, ax_att = axes
+        for k, (label, X) in enumerate(flights.items()):
+            pos, att = errors(task, X)
+            t = np.arange(len(pos)) * dt
+            ax.plot(t, np.linalg.norm(pos, axis=1), color=f"C{k}", lw=1.0, label=label)
+            ax_att.plot(t, np.linalg.norm(att, axis=1), color=f"C{k}", lw=1.0, label=label)
+        ax.set(xlabel="time (s)", ylabel="|position error| (m)", yscale="log",
+               title=f"{title}: position error")  # fmt: skip
+        ax_att.set(xlabel="time (s)", ylabel="|attitude error| (quaternion vector)",
+                   yscale="log", title=f"{title}: attitude error")  # fmt: skip
+    axes[0].legend(fontsize=7)
+
+
+def animate(task, flights: dict[str, np.ndarray], path, *, every: int = 4, fps: int = 20) -> Path:
+    """An animated GIF (matplotlib + Pillow) of ``flights`` seen from above (funnel) or of their
+    position error (hover): each helicopter a dot with its trail, every ``every``-th step."""
+    import matplotlib
+
+    matplotlib.use("Agg", force=True)
+    import matplotlib.pyplot as plt
+    from matplotlib.animation import FuncAnimation, PillowWriter
+
+    target = np.asarray(task.target)
+    fig, ax = plt.subplots(figsize=(5.5, 5.5), layout="constrained")
+    paths = {}
+    for label, X in flights.items():
+        if task.time_varying:
+            p = X[:, h.NED][:, [1, 0]]  # east, north
+        else:
+            pos, _ = errors(task, X)
+            p = pos[:, [1, 0]]
+        paths[label] = np.where(np.isfinite(p) & (np.abs(p) < 1e3), p, np.nan)
+    if task.time_varying:
+        ax.plot(target[:, h.NED][:, 1], target[:, h.NED][:, 0], "k--", lw=0.8, label="target")
+        ax.set(xlabel="east (m)", ylabel="north (m)")
+    else:
+        ax.plot([0], [0], "k+", ms=12, label="target")
+        ax.set(xlabel="east error (m)", ylabel="north error (m)")
+    finite = np.concatenate([p[np.all(np.isfinite(p), axis=1)] for p in paths.values()])
+    span = np.nanmax(np.abs(finite)) if finite.size else 1.0
+    ax.set(xlim=(-1.1 * span, 1.1 * span), ylim=(-1.1 * span, 1.1 * span), aspect="equal")
+    trails = {lab: ax.plot([], [], color=f"C{k}", lw=1.0)[0] for k, lab in enumerate(paths)}
+    dots = {lab: ax.plot([], [], "o", color=f"C{k}", label=lab)[0] for k, lab in enumerate(paths)}
+    ax.legend(fontsize=8, loc="upper right")
+    clock = ax.set_title("")
+    T = max(len(p) for p in paths.values())
+    frames = range(0, T, every)
+
+    def draw(i):
+        for lab, p in paths.items():
+            j = min(i, len(p) - 1)
+            trails[lab].set_data(p[: j + 1, 0], p[: j + 1, 1])
+            dots[lab].set_data(p[j : j + 1, 0], p[j : j + 1, 1])
+        clock.set_text(f"t = {i * h.DT:5.1f} s")
+        return [*trails.values(), *dots.values(), clock]
+
+    path = Path(path)
+    tmp = path.with_name(f".{path.name}.tmp.gif")
+    FuncAnimation(fig, draw, frames=frames, blit=False).save(tmp, writer=PillowWriter(fps=fps))
+    plt.close(fig)
+    tmp.replace(path)
+    return path
