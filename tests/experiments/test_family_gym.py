@@ -54,8 +54,10 @@ def test_pendulum_with_workers_and_ray_gives_one_table(tmp_path, cache):
     args = ["run", "gym", "--config", path, "--seeds", "2", "--iterations", "3", "--quiet"]
     r = cli(*args, "--workers", "2", "--out", tmp_path / "two", cache=cache)
     assert r.returncode == 0, r.stderr
-    for name in ("config.toml", "results.parquet", "figure.png", "report.md"):
+    for name in ("config.toml", "results.parquet", "figure.png", "report.md", "trajectories.png"):
         assert (tmp_path / "two" / name).exists(), name
+    for method in ("dagger", "batch", "abbeel"):  # each cell's saved policies and models
+        assert (tmp_path / "two" / "cells" / f"gym__{method}.npz").is_file()
     table = pq.read_table(tmp_path / "two" / "results.parquet")
     assert table.num_rows == 3 * 2 * 3 and set(table["scenario"].to_pylist()) == {"gym"}
     written = tomllib.loads((tmp_path / "two" / "config.toml").read_text())

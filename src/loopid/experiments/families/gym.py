@@ -467,6 +467,57 @@ def evaluate(s: GymScenario, K, seeds, episodes: int, env=None) -> np.ndarray:
     return costs
 
 
+def trajectories(run_dir, configs, path) -> None:
+    """``trajectories.png``: each method's saved final policy at the first seed flying that
+    seed's first test episode; one panel per observed coordinate (``o − o*`` against steps)."""
+    import io
+    from pathlib import Path
+
+    import matplotlib
+
+    matplotlib.use("Agg", force=True)
+    import matplotlib.pyplot as plt
+
+    from loopid.algorithms.host_loop import _TEST, slot_seeds
+    from loopid.experiments import artifacts
+    from loopid.experiments.results import write_atomic_bytes
+    from loopid.systems.from_gymnasium import Slot
+
+    for name, s in configs.items():
+        cells = Path(run_dir) / "cells"
+        methods = [m for m in METHODS if (cells / f"{name}__{m}.json").is_file()]
+        if not methods:
+            continue
+        system = make_system(s)
+        try:
+            flights = {}
+            for m in methods:
+                _, arrays = artifacts.read(cells, name, m)
+                seed = int(arrays["seeds"][0])
+                slot = Slot(0, 0, slot_seeds(seed, 0, _TEST, 1)[0], 0.0, False)
+                r = system.rollouts([system.linear_policy(arrays["K"][:1])], [slot])
+                steps = int(r.mask[0].sum())
+                flights[m] = system.observed(r.x[0, :steps]) - np.asarray(_shape(system).target)
+            n_obs = system.n_obs
+        finally:
+            system.close()
+        fig, axes = plt.subplots(n_obs, 1, figsize=(7, 2.2 * n_obs), squeeze=False,
+                                 layout="constrained")  # fmt: skip
+        for i, ax in enumerate(axes[:, 0]):
+            for k, (m, o) in enumerate(flights.items()):
+                ax.plot(o[:, i], color=f"C{k}", lw=1.0, label=m)
+            ax.axhline(0.0, color="k", ls="--", lw=0.8)
+            ax.set(ylabel=f"observed {i}: o − o*")
+        axes[0, 0].set_title(f"{s.env_id}: seed {seed}'s first test episode")
+        axes[-1, 0].set_xlabel("step")
+        axes[0, 0].legend(fontsize=8)
+        buf = io.BytesIO()
+        fig.savefig(buf, format="png", dpi=100)
+        plt.close(fig)
+        write_atomic_bytes(buf.getvalue(), path)
+        return  # one gym scenario per run
+
+
 FAMILY = Family(
     name="gym",
     config=GymScenario,
@@ -481,4 +532,5 @@ FAMILY = Family(
     check=check,
     load=load,
     evaluate=evaluate,
+    trajectories=trajectories,
 )
