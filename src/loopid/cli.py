@@ -8,7 +8,7 @@ Commands:
   loopid reproduce       the paper's Figure 2, every panel and method, and the finite-MDP study
   loopid study           every reading of the paper's open details (SPEC 5), one at a time
   loopid evaluate DIR    the run's saved controllers on fresh test episodes
-  loopid animate DIR     an animated GIF of saved policies flying the helicopter
+  loopid animate DIR     an animated GIF of saved policies flying
   loopid plot DIR        figure.png and report.md again from DIR/results.parquet
 
 A run directory holds config.toml, results.parquet, figure.png, report.md and cells/ (one file
@@ -401,15 +401,16 @@ def animate(
     scenario: str = typer.Option(None, "--scenario", help="Default: the run's first."),
     out: Path = typer.Option(None, "--out", help="GIF file (default: RUN_DIR/animation.gif)."),
 ) -> None:
-    """An animated GIF of saved final policies flying (helicopter runs): the funnel from above,
-    or the hover's position error, on the seed's first test trajectory."""
+    """An animated GIF of saved final policies flying: the helicopter's funnel from above (or the
+    hover's position error) on the seed's first test trajectory, or a Gymnasium env's own
+    rgb_array frames, the methods side by side."""
     from loopid.experiments.execute import run_family
 
     if not (run_dir / "config.toml").is_file():
         raise ValueError(f"{str(run_dir)!r} is not a run directory (no config.toml)")
     family, configs = run_family(run_dir)
     if family.animate is None:
-        raise ValueError(f"loopid animate draws helicopter runs, not {family.name} runs")
+        raise ValueError(f"loopid animate draws helicopter and gym runs, not {family.name} runs")
     name = scenario or next(iter(configs))
     if name not in configs:
         raise ValueError(f"{run_dir} has no scenario {name!r}; it has {', '.join(configs)}")

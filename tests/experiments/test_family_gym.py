@@ -155,3 +155,25 @@ def test_the_command_line_exits_2_with_one_line_and_writes_nothing(tmp_path):
     lines = done.stderr.strip().splitlines()
     assert len(lines) == 1 and "Discrete" in lines[0]
     assert not (tmp_path / "out").exists()
+
+
+def test_animate_a_gym_run_from_the_envs_own_frames(tmp_path, capsys):
+    """``loopid animate`` on a gym run: the env's rgb_array frames, the methods side by side."""
+    pytest.importorskip("pygame")
+    from PIL import Image
+
+    from loopid.cli import main
+
+    path = write(tmp_path, "p.toml", {"run": {"iterations": 2, "seeds": [0]}})
+    out = tmp_path / "run"
+    gif = str(tmp_path / "a.gif")
+    for args in (["run", "gym", "--config", str(path), "--workers", "1", "--quiet",
+                  "--out", str(out)],
+                 ["animate", str(out), "--method", "dagger,batch", "--out", gif]):  # fmt: skip
+        with pytest.raises(SystemExit) as e:
+            main(args)
+        assert e.value.code == 0
+    with Image.open(tmp_path / "a.gif") as im:
+        width, height = im.size
+        assert im.format == "GIF" and width == 2 * height  # two square Pendulum frames
+    assert (out / "trajectories.png").is_file()

@@ -29,6 +29,7 @@ mean test cost against samples, ± one standard error, per method; report: the f
 import importlib
 from dataclasses import dataclass, fields
 from functools import lru_cache
+from pathlib import Path
 from typing import Any, NamedTuple
 
 import numpy as np
@@ -471,7 +472,6 @@ def trajectories(run_dir, configs, path) -> None:
     """``trajectories.png``: each method's saved final policy at the first seed flying that
     seed's first test episode; one panel per observed coordinate (``o − o*`` against steps)."""
     import io
-    from pathlib import Path
 
     import matplotlib
 
@@ -518,6 +518,49 @@ def trajectories(run_dir, configs, path) -> None:
         return  # one gym scenario per run
 
 
+def animate(run_dir, s: GymScenario, methods, seed: int, path, every: int = 2) -> None:
+    """An animated GIF of the env's own ``rgb_array`` frames: each method's saved final policy
+    at ``seed`` flying one episode (reset with ``seed`` and the scenario's reset options), the
+    methods side by side."""
+    import gymnasium
+    from PIL import Image
+
+    from loopid.experiments.saved import load as load_saved
+
+    policies = [load_saved(run_dir, s.name, m, seed).controller for m in methods]
+    films = []
+    for controller in policies:
+        env = None
+        try:  # any failure of the env's own renderer (a missing pygame, say) is one line
+            env = gymnasium.make(s.env_id, render_mode="rgb_array", **thaw(s.env_kwargs))
+            policy = controller.as_gymnasium_policy(env.action_space)
+            obs, _ = env.reset(seed=int(seed), options=thaw(s.reset_options) or None)
+            policy.reset()
+            frames = [env.render()]
+            for _ in range(s.horizon or env.spec.max_episode_steps or 200):
+                obs, _, terminated, truncated, _ = env.step(policy(obs))
+                frames.append(env.render())
+                if terminated or truncated:
+                    break
+        except (gymnasium.error.Error, ImportError, TypeError) as e:
+            what = " ".join(str(e).split())
+            raise ValueError(f"{s.env_id} cannot render rgb_array frames ({what})") from None
+        finally:
+            if env is not None:
+                env.close()
+        if frames[0] is None:
+            raise ValueError(f"{s.env_id} renders no rgb_array frames")
+        films.append(frames)
+    T = max(len(f) for f in films)
+    images = [
+        Image.fromarray(np.concatenate([f[min(t, len(f) - 1)] for f in films], axis=1))
+        for t in range(0, T, every)
+    ]
+    tmp = Path(path).with_name(f".{Path(path).name}.tmp.gif")
+    images[0].save(tmp, save_all=True, append_images=images[1:], duration=40 * every, loop=0)
+    tmp.replace(path)
+
+
 FAMILY = Family(
     name="gym",
     config=GymScenario,
@@ -533,4 +576,5 @@ FAMILY = Family(
     load=load,
     evaluate=evaluate,
     trajectories=trajectories,
+    animate=animate,
 )
