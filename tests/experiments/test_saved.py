@@ -59,6 +59,9 @@ def test_the_saved_model_predicts_as_the_learner_did(hover_run):
         np.testing.assert_array_equal(saved.model.W, trace.final["W"][i])
         expected = np.asarray(predict(nominal, trace.final["W"][i], dx, du))
         np.testing.assert_array_equal(saved.model.predict(dx, du), expected)
+        # as a nominal with no offsets it predicts the same (to rounding: Â = A + W[:n]ᵀ first)
+        again = np.asarray(predict(saved.model.as_nominal(), 0 * saved.model.W, dx, du))
+        np.testing.assert_allclose(again, expected, rtol=1e-12, atol=1e-12)
         # and it is not the nominal model: the learner moved it
         assert np.abs(expected - np.asarray(predict(nominal, 0 * saved.model.W, dx, du))).max() > 0
 

@@ -141,9 +141,16 @@ def animate(task, flights: dict[str, np.ndarray], path, *, every: int = 4, fps: 
     else:
         ax.plot([0], [0], "k+", ms=12, label="target")
         ax.set(xlabel="east error (m)", ylabel="north error (m)")
-    finite = np.concatenate([p[np.all(np.isfinite(p), axis=1)] for p in paths.values()])
-    span = np.nanmax(np.abs(finite)) if finite.size else 1.0
-    ax.set(xlim=(-1.1 * span, 1.1 * span), ylim=(-1.1 * span, 1.1 * span), aspect="equal")
+    if task.time_varying:  # the view is the target's: a diverging flight leaves it
+        ne = target[:, h.NED][:, [1, 0]]  # east, north
+        center = 0.5 * (ne.min(axis=0) + ne.max(axis=0))
+        span = 1.5 * float(np.max(np.abs(ne - center))) + 1.0
+    else:  # hover: the errors, at most 10 m either way
+        finite = np.concatenate([p[np.all(np.isfinite(p), axis=1)] for p in paths.values()])
+        span = min(float(np.max(np.abs(finite))) if finite.size else 1.0, 10.0)
+        center = np.zeros(2)
+    ax.set(xlim=(center[0] - 1.1 * span, center[0] + 1.1 * span),
+           ylim=(center[1] - 1.1 * span, center[1] + 1.1 * span), aspect="equal")  # fmt: skip
     trails = {lab: ax.plot([], [], color=f"C{k}", lw=1.0)[0] for k, lab in enumerate(paths)}
     dots = {lab: ax.plot([], [], "o", color=f"C{k}", label=lab)[0] for k, lab in enumerate(paths)}
     ax.legend(fontsize=8, loc="upper right")

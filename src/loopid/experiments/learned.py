@@ -20,7 +20,7 @@ from typing import Any, NamedTuple
 
 import numpy as np
 
-from loopid.models.linear_offset import LinearOffsetModel, predict
+from loopid.models.linear_offset import LinearOffsetModel, predict, to_matrices
 
 
 class LinearModel(NamedTuple):
@@ -34,6 +34,12 @@ class LinearModel(NamedTuple):
         """The predicted next error state ``[b, n]`` of rows ``dx [b, n]``, ``du [b, m]`` (and
         each row's step ``t [b]`` for a time-varying model)."""
         return np.asarray(predict(self.nominal, self.W, dx, du, t))
+
+    def as_nominal(self) -> LinearOffsetModel:
+        """The learned model ``(Â, B̂) = (A + A', B + B')`` as a nominal to start another run's
+        learner from (:func:`loopid.algorithms.model_based.linear_agent`)."""
+        A, B = to_matrices(self.nominal, self.W)
+        return LinearOffsetModel(A, B)
 
 
 class TableModel(NamedTuple):
