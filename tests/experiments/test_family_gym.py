@@ -177,3 +177,12 @@ def test_animate_a_gym_run_from_the_envs_own_frames(tmp_path, capsys):
         width, height = im.size
         assert im.format == "GIF" and width == 2 * height  # two square Pendulum frames
     assert (out / "trajectories.png").is_file()
+    info = __import__("json").loads((out / "cells" / "gym__dagger.json").read_text())
+    assert info["config"]["observe"] == [1, 2] and info["config"]["target"] == [0.0, 0.0]
+    # the saved controllers on another env id (transfer): here Pendulum-v1 itself, by name
+    with pytest.raises(SystemExit) as e:
+        main(["evaluate", str(out), "--env", "Pendulum-v1", "--episodes", "3"])
+    assert e.value.code == 0
+    rows = pq.read_table(out / "evaluate.parquet").to_pylist()
+    assert {r["env"] for r in rows} == {"Pendulum-v1"} and len(rows) == 2
+    assert all(r["mean"] < 1.0 for r in rows)  # both hold the pendulum up on fresh episodes

@@ -7,8 +7,11 @@ Each finished cell of a run directory has, beside its rows (``cells/S__M.parquet
                       policy's gains, the model's parameters (``W`` for a linear offset model,
                       ``T_hat`` for a finite MDP's), ``best_K`` / ``history`` when the test
                       policy selects them
-    cells/S__M.json   what they are: format version, family, scenario, method, seeds, and each
-                      array's name, shape and dtype
+    cells/S__M.json   what they are: format version, family, scenario, method, seeds, each
+                      array's name, shape and dtype, and the scenario's configuration
+                      (``config``: the coordinates the arrays are in, e.g. a Gymnasium run's
+                      target, action_op, observe and horizon; the helicopter's task, pads,
+                      delay and delay_mode)
 
 Format: NumPy's ``.npz`` (uncompressed), which stores float64 exactly, needs no dependency
 beyond NumPy and is read by any NumPy (``np.load``); safetensors would add a dependency and
@@ -40,8 +43,11 @@ def _replace(write, path: Path) -> None:
     os.replace(tmp, path)
 
 
-def write(cells: Path, scenario: str, method: str, family: str, seeds, final: dict) -> None:
-    """Write one cell's artifacts (module docstring); ``final``: ``{name: [S, ...] array}``."""
+def write(
+    cells: Path, scenario: str, method: str, family: str, seeds, final: dict, config=None
+) -> None:
+    """Write one cell's artifacts (module docstring); ``final``: ``{name: [S, ...] array}``;
+    ``config``: the scenario's ``to_dict()``."""
     seeds = np.asarray(seeds, dtype=np.int64)
     arrays = {name: np.asarray(v) for name, v in final.items()}
     for name, v in arrays.items():
@@ -61,6 +67,7 @@ def write(cells: Path, scenario: str, method: str, family: str, seeds, final: di
         "method": method,
         "seeds": seeds.tolist(),
         "arrays": {n: {"shape": list(v.shape), "dtype": str(v.dtype)} for n, v in arrays.items()},
+        "config": config or {},
     }
     _replace(lambda tmp: tmp.write_text(json.dumps(info, indent=1) + "\n"), meta)
 

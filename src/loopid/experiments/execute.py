@@ -181,7 +181,8 @@ def run_cells(
     family = family_of(scenarios[0]).name
     for job, done in executor(executor_name)(jobs, seeds, run_cell, on_cell=on_cell, **options):
         name, t0 = job.scenario.name, time.perf_counter()
-        artifacts.write(rd.cells, name, job.method, family, done.seeds, done.final)
+        artifacts.write(rd.cells, name, job.method, family, done.seeds, done.final,
+                        job.scenario.to_dict())  # fmt: skip
         table = with_metadata(done.table, artifacts_s=f"{time.perf_counter() - t0:.3f}")
         rd.save_cell(name, job.method, table)  # last: a finished cell has its artifacts
         rd.write_results(order)

@@ -352,6 +352,50 @@ def evaluate(s: MDPScenario, K, seeds, episodes: int, env=None) -> np.ndarray:
     return np.repeat(np.asarray(J)[:, None], episodes, axis=1)
 
 
+def trajectories(run_dir, configs, path) -> None:
+    """``trajectories.png`` of a finite MDP run: where each method's saved final policy (first
+    seed) goes, its exact discounted state occupancy ``D_{μ,π}(s)`` (a finite MDP has no path in
+    space; this is the distribution its episodes visit), one panel per scenario, with the
+    optimal policy's for reference."""
+    import io
+
+    import matplotlib
+
+    matplotlib.use("Agg", force=True)
+    import matplotlib.pyplot as plt
+
+    from loopid.control.value_iteration import occupancy, value_iteration
+    from loopid.experiments import artifacts
+    from loopid.experiments.results import write_atomic_bytes
+
+    cells = Path(run_dir) / "cells"
+    panels = [(n, s) for n, s in configs.items() if list(cells.glob(f"{n}__*.json"))]
+    if not panels:
+        return
+    fig, axes = plt.subplots(len(panels), 1, figsize=(8, 3.2 * len(panels)), squeeze=False,
+                             layout="constrained")  # fmt: skip
+    for ax, (name, s) in zip(axes[:, 0], panels, strict=True):
+        mdp = mdp_setup(s).mdp
+        optimal = value_iteration(mdp.P, mdp.C, mdp.gamma, tol=1e-12, max_iter=100_000).policy
+        policies = {"optimal": np.asarray(optimal)}
+        for m in MDP_METHODS:
+            if (cells / f"{name}__{m}.json").is_file():
+                _, arrays = artifacts.read(cells, name, m)
+                policies[m] = arrays["K"][0]
+        width = 0.8 / len(policies)
+        states = np.arange(mdp.n_states)
+        for k, (label, K) in enumerate(policies.items()):
+            d = np.asarray(occupancy(mdp.P, mdp.mu, mdp.gamma, jax.numpy.asarray(K))).sum(axis=1)
+            ax.bar(states + (k - (len(policies) - 1) / 2) * width, d / d.sum(), width,
+                   color="k" if label == "optimal" else f"C{k - 1}", label=label)  # fmt: skip
+        ax.set(xlabel="state", ylabel="D_μ,π(s)", title=f"{name}: where the final policies go")
+        ax.legend(fontsize=8)
+    buf = io.BytesIO()
+    fig.savefig(buf, format="png", dpi=100)
+    plt.close(fig)
+    write_atomic_bytes(buf.getvalue(), path)
+
+
 FAMILY = Family(
     name="mdp",
     config=MDPScenario,
@@ -365,4 +409,5 @@ FAMILY = Family(
     report=report,
     load=load,
     evaluate=evaluate,
+    trajectories=trajectories,
 )
