@@ -6,7 +6,8 @@ Each finished cell of a run directory has, beside its rows (``cells/S__M.parquet
                       with the seeds along the first axis (``seeds`` [S]): ``K`` the last
                       policy's gains, the model's parameters (``W`` for a linear offset model,
                       ``T_hat`` for a finite MDP's), ``best_K`` / ``history`` when the test
-                      policy selects them
+                      policy selects them; and, under ``shared.NAME``, what every seed shares
+                      (the nominal model ``shared.A``, ``shared.B`` the offsets ``W`` add to)
     cells/S__M.json   what they are: format version, family, scenario, method, seeds, each
                       array's name, shape and dtype, and the scenario's configuration
                       (``config``: the coordinates the arrays are in, e.g. a Gymnasium run's
@@ -44,20 +45,29 @@ def _replace(write, path: Path) -> None:
 
 
 def write(
-    cells: Path, scenario: str, method: str, family: str, seeds, final: dict, config=None
+    cells: Path,
+    scenario: str,
+    method: str,
+    family: str,
+    seeds,
+    final: dict,
+    config=None,
+    shared: dict | None = None,
 ) -> None:
     """Write one cell's artifacts (module docstring); ``final``: ``{name: [S, ...] array}``;
-    ``config``: the scenario's ``to_dict()``."""
+    ``config``: the scenario's ``to_dict()``; ``shared``: ``{name: array}`` of every seed."""
     seeds = np.asarray(seeds, dtype=np.int64)
     arrays = {name: np.asarray(v) for name, v in final.items()}
     for name, v in arrays.items():
         if v.shape[:1] != seeds.shape:
             raise ValueError(f"artifact {name!r} has shape {v.shape}, not [{seeds.size}, ...]")
+    common = {f"shared.{name}": np.asarray(v) for name, v in (shared or {}).items()}
+    arrays_and_common = {**arrays, **common}
     npz, meta = paths(cells, scenario, method)
 
     def save_npz(tmp: Path) -> None:
         with open(tmp, "wb") as f:
-            np.savez(f, seeds=seeds, **arrays)
+            np.savez(f, seeds=seeds, **arrays_and_common)
 
     _replace(save_npz, npz)
     info = {
@@ -66,7 +76,9 @@ def write(
         "scenario": scenario,
         "method": method,
         "seeds": seeds.tolist(),
-        "arrays": {n: {"shape": list(v.shape), "dtype": str(v.dtype)} for n, v in arrays.items()},
+        "arrays": {
+            n: {"shape": list(v.shape), "dtype": str(v.dtype)} for n, v in arrays_and_common.items()
+        },
         "config": config or {},
     }
     _replace(lambda tmp: tmp.write_text(json.dumps(info, indent=1) + "\n"), meta)

@@ -77,6 +77,7 @@ class CellResult(NamedTuple):
     table: pa.Table
     seeds: np.ndarray
     final: dict
+    shared: dict
 
 
 def run_cell(
@@ -98,7 +99,9 @@ def run_cell(
     wall = time.perf_counter() - t0
     table = trace_table(s.name, method, trace)
     table = with_metadata(table, wall_s=f"{wall:.3f}", first_s=f"{first[0] or wall:.3f}")
-    return CellResult(table, np.asarray(trace.seeds), dict(trace.final or {}))
+    family = family_of(s)
+    shared = family.shared(s, method) if family.shared is not None else {}
+    return CellResult(table, np.asarray(trace.seeds), dict(trace.final or {}), shared)
 
 
 def check_cells(scenarios: Sequence[Scenario], methods: Methods, seeds) -> np.ndarray:
@@ -182,7 +185,7 @@ def run_cells(
     for job, done in executor(executor_name)(jobs, seeds, run_cell, on_cell=on_cell, **options):
         name, t0 = job.scenario.name, time.perf_counter()
         artifacts.write(rd.cells, name, job.method, family, done.seeds, done.final,
-                        job.scenario.to_dict())  # fmt: skip
+                        job.scenario.to_dict(), done.shared)  # fmt: skip
         table = with_metadata(done.table, artifacts_s=f"{time.perf_counter() - t0:.3f}")
         rd.save_cell(name, job.method, table)  # last: a finished cell has its artifacts
         rd.write_results(order)

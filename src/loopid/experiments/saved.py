@@ -47,5 +47,6 @@ def load(run_dir, scenario: str, method: str, seed: int) -> Saved:
     if isinstance(seed, bool) or not isinstance(seed, int | np.integer) or seed not in seeds:
         raise ValueError(f"seed {seed!r} is not in {scenario}/{method}; its seeds: {seeds}")
     i = seeds.index(int(seed))
-    model, controller = family.load(configs[scenario], method, {k: v[i] for k, v in arrays.items()})
+    one = {k: v if k.startswith("shared.") else v[i] for k, v in arrays.items()}
+    model, controller = family.load(configs[scenario], method, one)
     return Saved(model, controller, configs[scenario], method, int(seed))

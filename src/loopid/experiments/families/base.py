@@ -48,6 +48,9 @@ class Family:
         (Markdown lines), after the common header, configuration and wall time.
       check: ``check(config)``: checks that need the system itself (sizes against a Gymnasium
         env, say), run before anything is written; None when the config checks itself.
+      shared: ``shared(config, method) -> {name: array}``: what a cell's seeds share and its
+        artifacts keep beside their own arrays (the nominal model the learned offsets add to);
+        None for nothing.
       load: ``load(config, method, arrays) -> (model, controller)``: one seed's saved final
         arrays (:mod:`loopid.experiments.artifacts`) rebuilt in the system's coordinates
         (:mod:`loopid.experiments.saved`); None when the family cannot.
@@ -71,6 +74,7 @@ class Family:
     figure: Callable[[pa.Table, Path, Mapping[str, Any]], None]
     report: Callable[[pa.Table, Mapping[str, Any]], list[str]]
     check: Callable[[Any], None] | None = None
+    shared: Callable[[Any, str], dict] | None = None
     load: Callable[[Any, str, dict], tuple[Any, Any]] | None = None
     evaluate: Callable[..., Any] | None = None
     trajectories: Callable[..., Any] | None = None

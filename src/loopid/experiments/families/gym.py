@@ -59,6 +59,7 @@ from loopid.experiments.config import (
 )
 from loopid.experiments.families.base import Family, Progress
 from loopid.experiments.report import final_cost_sections
+from loopid.models.linear_offset import LinearOffsetModel
 from loopid.systems.from_gymnasium import CallablePolicy, GymSystem, OpenLoopPolicy, quadratic_cost
 
 METHODS = ("dagger", "batch", "abbeel")
@@ -445,9 +446,8 @@ def load(s: GymScenario, method: str, arrays: dict):
         return np.concatenate([o - target, [1.0]])
 
     model = None
-    if "W" in arrays:
-        nominal = _checked("model", nominal_model, shape, thaw(s.A), thaw(s.B),
-                           time_varying=s.time_varying)  # fmt: skip
+    if "W" in arrays:  # the nominal the cell kept (shared.A, shared.B)
+        nominal = LinearOffsetModel(np.asarray(arrays["shared.A"]), np.asarray(arrays["shared.B"]))
         model = LinearModel(nominal, arrays["W"])
     return model, GainController(arrays["K"], error, np.asarray(shape.a_op))
 
@@ -561,6 +561,18 @@ def animate(run_dir, s: GymScenario, methods, seed: int, path, every: int = 2) -
     tmp.replace(path)
 
 
+def shared(s: GymScenario, method: str) -> dict:
+    """The nominal model ``A``, ``B`` every seed's learned offsets add to."""
+    system = make_system(s)
+    try:
+        shape = _shape(system)
+    finally:
+        system.close()
+    nominal = _checked("model", nominal_model, shape, thaw(s.A), thaw(s.B),
+                       time_varying=s.time_varying)  # fmt: skip
+    return {"A": np.asarray(nominal.A), "B": np.asarray(nominal.B)}
+
+
 FAMILY = Family(
     name="gym",
     config=GymScenario,
@@ -573,6 +585,7 @@ FAMILY = Family(
     figure=figure,
     report=report,
     check=check,
+    shared=shared,
     load=load,
     evaluate=evaluate,
     trajectories=trajectories,

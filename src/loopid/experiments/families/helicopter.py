@@ -201,8 +201,19 @@ def load(s: Scenario, method: str, arrays: dict):
 
     delay = st.plant.task.delay if s.delay_mode == "latency" else 0
     controller = GainController(arrays["K"], error, np.zeros(helicopter.N_ACTION), delay)
-    model = LinearModel(st.nominal, arrays["W"]) if "W" in arrays else None
+    model = None
+    if "W" in arrays:  # the saved nominal when the cell kept it, else the scenario's
+        A, B = arrays.get("shared.A", st.nominal.A), arrays.get("shared.B", st.nominal.B)
+        model = LinearModel(LinearOffsetModel(np.asarray(A), np.asarray(B)), arrays["W"])
     return model, controller
+
+
+def shared(s: Scenario, method: str) -> dict:
+    """What a learning cell's seeds share: the nominal model ``A``, ``B`` its offsets add to."""
+    if method in ("expert", "pg"):
+        return {}
+    nominal = setup(s).nominal
+    return {"A": np.asarray(nominal.A), "B": np.asarray(nominal.B)}
 
 
 def evaluate(s: Scenario, K, seeds, episodes: int, env=None) -> np.ndarray:
@@ -285,6 +296,7 @@ FAMILY = Family(
     run=run,
     figure=figure,
     report=report,
+    shared=shared,
     load=load,
     evaluate=evaluate,
     trajectories=trajectories,
