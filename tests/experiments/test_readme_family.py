@@ -96,9 +96,8 @@ def test_run_directory_is_complete_and_resumes(example):
     out = home / "runs" / "linear"
     for name in ("config.toml", "results.parquet", "figure.png", "report.md"):
         assert (out / name).is_file(), name
-    assert sorted(p.name for p in (out / "cells").iterdir()) == [
-        "linear__batch.parquet",
-        "linear__dagger.parquet",
+    assert sorted(p.name for p in (out / "cells").iterdir()) == [  # rows and saved policies
+        f"linear__{m}.{ext}" for m in ("batch", "dagger") for ext in ("json", "npz", "parquet")
     ]
     config = ns["LinearConfig"]()
     recorded = tomllib.loads((out / "config.toml").read_text())
