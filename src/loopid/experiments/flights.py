@@ -99,17 +99,25 @@ def _panel(axes, task, flights, title) -> None:
             p = np.where(np.abs(p) < 1e3, p, np.nan)  # a diverged flight leaves the axes
             ax.plot(p[:, 1], p[:, 0], color=f"C{k}", lw=1.2, label=label)
             ax_alt.plot(np.arange(len(p)) * dt, -p[:, 2], color=f"C{k}", lw=1.0, label=label)
-        ax.set(xlabel="east (m)", ylabel="north (m)", title=f"{title}: path from above")
-        ax.set_aspect("equal", adjustable="datalim")
+        ne = ned[:, [1, 0]]  # the view is the target's: a diverging flight leaves it
+        center = 0.5 * (ne.min(axis=0) + ne.max(axis=0))
+        span = 1.5 * float(np.max(np.abs(ne - center))) + 1.0
+        ax.set(xlabel="east (m)", ylabel="north (m)", title=f"{title}: path from above",
+               xlim=(center[0] - span, center[0] + span), ylim=(center[1] - span, center[1] + span),
+               aspect="equal")  # fmt: skip
+        alt = -ned[:, 2]
+        ax_alt.set_ylim(alt.min() - 5.0, alt.max() + 5.0)
         ax_alt.set(xlabel="time (s)", ylabel="altitude (m)", title=f"{title}: altitude")
     else:  # hover: position and attitude errors over time
         ax, ax_att = axes
         for k, (label, X) in enumerate(flights.items()):
             pos, att = errors(task, X)
             t = np.arange(len(pos)) * dt
-            ax.plot(t, np.linalg.norm(pos, axis=1), color=f"C{k}", lw=1.0, label=label)
-            ax_att.plot(t, np.linalg.norm(att, axis=1), color=f"C{k}", lw=1.0, label=label)
-        ax.set(xlabel="time (s)", ylabel="|position error| (m)", yscale="log",
+            with np.errstate(over="ignore", invalid="ignore"):  # a diverged flight: inf, drawn off
+                size = np.linalg.norm(pos, axis=1), np.linalg.norm(att, axis=1)
+            ax.plot(t, size[0], color=f"C{k}", lw=1.0, label=label)
+            ax_att.plot(t, size[1], color=f"C{k}", lw=1.0, label=label)
+        ax.set(xlabel="time (s)", ylabel="|position error| (m)", yscale="log", ylim=(1e-3, 1e3),
                title=f"{title}: position error")  # fmt: skip
         ax_att.set(xlabel="time (s)", ylabel="|attitude error| (quaternion vector)",
                    yscale="log", title=f"{title}: attitude error")  # fmt: skip
