@@ -109,3 +109,13 @@ def read(cells: Path, scenario: str, method: str) -> tuple[dict, dict[str, np.nd
         if list(v.shape) != expected[name]["shape"] or str(v.dtype) != expected[name]["dtype"]:
             raise ValueError(f"{str(npz)!r}: array {name!r} does not match {str(meta)!r}")
     return info, {"seeds": seeds, **arrays}
+
+
+def for_seed(arrays: dict, seed, where: str) -> dict[str, np.ndarray]:
+    """One seed's arrays of :func:`read`'s ``arrays``: each ``[S, ...]`` array at that seed, the
+    ``shared.*`` ones whole; ``ValueError`` naming a seed the cell does not have."""
+    seeds = arrays["seeds"].tolist()
+    if isinstance(seed, bool) or not isinstance(seed, int | np.integer) or seed not in seeds:
+        raise ValueError(f"seed {seed!r} is not in {where}; its seeds: {seeds}")
+    i = seeds.index(int(seed))
+    return {k: v if k.startswith("shared.") else v[i] for k, v in arrays.items() if k != "seeds"}

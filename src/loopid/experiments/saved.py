@@ -13,8 +13,6 @@ Every problem (no such run, scenario, method or seed; a missing or corrupt file)
 from pathlib import Path
 from typing import Any, NamedTuple
 
-import numpy as np
-
 from loopid.experiments import artifacts
 
 
@@ -43,10 +41,6 @@ def load(run_dir, scenario: str, method: str, seed: int) -> Saved:
     if family.load is None:
         raise ValueError(f"the {family.name} family saves no models and controllers")
     _, arrays = artifacts.read(run_dir / "cells", scenario, method)
-    seeds = arrays.pop("seeds").tolist()
-    if isinstance(seed, bool) or not isinstance(seed, int | np.integer) or seed not in seeds:
-        raise ValueError(f"seed {seed!r} is not in {scenario}/{method}; its seeds: {seeds}")
-    i = seeds.index(int(seed))
-    one = {k: v if k.startswith("shared.") else v[i] for k, v in arrays.items()}
+    one = artifacts.for_seed(arrays, seed, f"{scenario}/{method}")
     model, controller = family.load(configs[scenario], method, one)
     return Saved(model, controller, configs[scenario], method, int(seed))

@@ -530,11 +530,7 @@ def animate(run_dir, s: GymScenario, methods, seed: int, path, every: int = 2) -
     policies = []
     for m in methods:
         _, arrays = artifacts.read(Path(run_dir) / "cells", s.name, m)
-        seeds = arrays.pop("seeds").tolist()
-        if int(seed) not in seeds:
-            raise ValueError(f"seed {seed!r} is not in {s.name}/{m}; its seeds: {seeds}")
-        i = seeds.index(int(seed))
-        one = {k: v if k.startswith("shared.") else v[i] for k, v in arrays.items()}
+        one = artifacts.for_seed(arrays, seed, f"{s.name}/{m}")
         policies.append(load(s, m, one)[1])
     films = []
     for controller in policies:

@@ -239,10 +239,7 @@ def _flights(run_dir, s: Scenario, methods, seed: int) -> dict:
     flights = {}
     for m in methods:
         _, arrays = artifacts.read(Path(run_dir) / "cells", s.name, m)
-        seeds = arrays["seeds"].tolist()
-        if int(seed) not in seeds:
-            raise ValueError(f"seed {seed!r} is not in {s.name}/{m}; its seeds: {seeds}")
-        K = arrays["K"][seeds.index(int(seed))]
+        K = artifacts.for_seed(arrays, seed, f"{s.name}/{m}")["K"]
         flights[m] = fly(plant.task, K, noise, s.delay_mode)
     return flights
 
