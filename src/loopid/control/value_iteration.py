@@ -8,12 +8,14 @@ makes one). Costs are minimised.
 - :func:`evaluate`: ``V_π = (I − γ P_π)^{-1} C_π`` by a linear solve (exact up to rounding).
 - :func:`value_iteration`: ``V ← min_a [C + γ P V]`` in a ``lax.while_loop`` until the sup-norm
   step ``δ`` satisfies ``γ δ / (1 − γ) ≤ tol`` (then ``‖V − V*‖_∞ ≤ tol``: contraction), or
-  ``max_iter`` steps (``converged`` False). Batched natively (one einsum per step for all MDPs).
+  ``max_iter`` steps (``converged`` False). Batched natively (one einsum per step for all MDPs);
+  when the batch's P is larger than the cache, the MDPs are iterated a chunk at a time (below).
 - :func:`policy_iteration`: Howard's policy iteration with exact evaluation; terminates in
   finitely many steps with V*.
 - :func:`occupancy`: the paper's ``D_{μ,π}(s, a) = (1−γ) Σ_t γ^{t−1} P(s_t = s, a_t = a)``.
 """
 
+import math
 from typing import NamedTuple
 
 import jax
@@ -141,6 +143,19 @@ def _occupancy(P, mu, g, pi):
 def value_iteration(P, C, gamma, *, tol: float = 1e-12, max_iter: int = 100_000, V0=None):
     """Optimal values of every MDP in the batch by value iteration (module doc).
 
+    Every MDP takes the same number of backups ``K`` (``iterations``): the first count at which
+    every MDP of the batch meets ``γ δ / (1 − γ) ≤ tol``, or ``max_iter``.
+
+    A backup reads all of P (8·S·A·S bytes per MDP), so it is memory-bound. When the batch's P
+    exceeds ``_CACHE_BYTES`` (and P itself carries the batch axes), the MDPs are split into chunks
+    that fit in the cache and each chunk is iterated on its own while its P stays cached, instead
+    of streaming the whole batch's P from memory at every backup (on the 2-core development
+    machine, 32 MiB L3: 20 MDPs with S = 500, A = 8 are 320 MB; one is 16 MB). The chunks are
+    brought to a common ``K`` in rounds (each chunk runs until it has reached the largest count
+    of the last round and meets the rule; repeat until all counts agree), so ``iterations`` and
+    ``converged`` are those of the whole-batch loop, and V and ``residual`` too up to rounding
+    (the matrix-vector products differ in shape: 1e-15 on values of order 10).
+
     Args:
       P: ``[..., S, A, S]``; C: ``[..., S, A]``; gamma: scalar or ``[...]`` in (0, 1).
       tol: target sup-norm error on V* (the stopping rule guarantees it).
@@ -157,11 +172,50 @@ def value_iteration(P, C, gamma, *, tol: float = 1e-12, max_iter: int = 100_000,
     if isinstance(max_iter, bool) or not isinstance(max_iter, int) or max_iter < 1:
         raise ValueError(f"max_iter must be a positive integer, got {max_iter!r}")
     g = _gamma(gamma, batch)
-    shape = (*batch, P.shape[-1])
+    S, A = P.shape[-1], P.shape[-2]
+    shape = (*batch, S)
     V0 = jnp.zeros(shape, jnp.float64) if V0 is None else jnp.asarray(V0, jnp.float64)
     if V0.shape != shape:
         raise ValueError(f"V0 must have shape {shape}, got {V0.shape}")
-    return _value_iteration(P, C, g, V0, tol, max_iter)
+    n = math.prod(batch)
+    chunk, padded = _chunking(n, 8 * S * A * S)
+    if P.shape[:-3] != batch or chunk >= n:
+        return _value_iteration(P, C, g, V0, tol, max_iter)
+    flat = (
+        P.reshape(n, S, A, S),
+        jnp.broadcast_to(C, (*batch, S, A)).reshape(n, S, A),
+        jnp.broadcast_to(g, batch).reshape(n),
+        V0.reshape(n, S),
+    )
+    V, delta, k = _value_iteration_chunked(*flat, tol, max_iter, chunk, padded)
+    V, delta = V.reshape(shape), delta.reshape(batch)
+    Q = _q_values(P, C, V, g)
+    threshold = tol * (1.0 - g) / g
+    return VIResult(V, Q, greedy(Q), k, delta, delta <= threshold)
+
+
+_CACHE_BYTES = 16 * 2**20
+"""The P bytes one chunk of :func:`value_iteration` may hold: half the development machine's
+32 MiB L3 (the rest is for V, Q, C and other processes)."""
+
+
+def _chunking(n: int, mdp_bytes: int) -> tuple[int, int]:
+    """(chunk size, padded batch size) for ``n`` MDPs of ``mdp_bytes`` of P each: the whole
+    batch when it fits in ``_CACHE_BYTES``; else the largest divisor of ``n`` that fits, or, if
+    that is under half of what fits, as many as fit with ``n`` padded up to a multiple."""
+    fit = max(1, _CACHE_BYTES // mdp_bytes)
+    if n <= fit:
+        return n, n
+    divisor = max(d for d in range(1, fit + 1) if n % d == 0)
+    if 2 * divisor > fit:
+        return divisor, n
+    return fit, -(-n // fit) * fit
+
+
+def _backup(P, C, g, V):
+    """``V ← min_a C + γ P V`` and the sup-norm step ``δ [...]``."""
+    V_new = jnp.min(q_values(P, C, V, g), axis=-1)
+    return V_new, jnp.max(jnp.abs(V_new - V), axis=-1)
 
 
 def _vi_core(P, C, g, V0, tol, max_iter):
@@ -174,9 +228,7 @@ def _vi_core(P, C, g, V0, tol, max_iter):
 
     def body(carry):
         V, _, k = carry
-        V_new = jnp.min(q_values(P, C, V, g), axis=-1)
-        delta = jnp.max(jnp.abs(V_new - V), axis=-1)
-        return V_new, delta, k + 1
+        return *_backup(P, C, g, V), k + 1
 
     inf = jnp.full(V0.shape[:-1], jnp.inf, jnp.float64)
     V, delta, k = jax.lax.while_loop(cond, body, (V0, inf, jnp.int32(0)))
@@ -185,6 +237,70 @@ def _vi_core(P, C, g, V0, tol, max_iter):
 
 
 _value_iteration = jax.jit(_vi_core, static_argnums=(4, 5))
+_q_values = jax.jit(q_values)
+
+
+def _vi_chunked_core(P, C, g, V0, tol, max_iter, chunk, padded):
+    """The whole-batch loop of :func:`_vi_core` run a chunk at a time (``value_iteration``'s
+    doc). ``P [n, S, A, S]``, ``C [n, S, A]``, ``g [n]``, ``V0 [n, S]``; the batch is padded to
+    ``padded`` with copies of the last MDP (they meet the rule when it does). Returns
+    ``V [n, S]``, ``δ [n]`` and the common count ``K``."""
+    n, S = V0.shape
+    if padded > n:
+        pad = lambda x: jnp.concatenate([x, jnp.repeat(x[-1:], padded - n, axis=0)])  # noqa: E731
+        P, C, g, V0 = pad(P), pad(C), pad(g), pad(V0)
+    m = padded // chunk
+    P, C, g = (
+        P.reshape(m, chunk, *P.shape[1:]),
+        C.reshape(m, chunk, *C.shape[1:]),
+        g.reshape(m, chunk),
+    )
+    threshold = tol * (1.0 - g) / g  # γδ/(1−γ) ≤ tol
+
+    def more(K, i, delta, k):
+        """Chunk ``i`` needs another backup: fewer than K, or short of the rule and not capped."""
+        return (k < K) | ((k < max_iter) & jnp.any(delta > threshold[i]))
+
+    def one_chunk(i, state):
+        """Bring chunk ``i`` to at least K backups that meet the rule (or are capped); P[i] is
+        sliced only when the chunk has work to do."""
+        _, delta, k, K = state
+
+        def run(state):
+            V, delta, k, K = state
+            P_i, C_i, g_i = P[i], C[i], g[i]
+
+            def body(carry):
+                V, _, k = carry
+                return *_backup(P_i, C_i, g_i, V), k + 1
+
+            V_i, d_i, k_i = jax.lax.while_loop(
+                lambda c: more(K, i, c[1], c[2]), body, (V[i], delta[i], k[i])
+            )
+            return V.at[i].set(V_i), delta.at[i].set(d_i), k.at[i].set(k_i), K
+
+        return jax.lax.cond(more(K, i, delta[i], k[i]), run, lambda s: s, state)
+
+    def round_cond(carry):
+        _, _, k, started = carry
+        return ~started | jnp.any(k != jnp.max(k))
+
+    def round_body(carry):
+        V, delta, k, _ = carry
+        V, delta, k, _ = jax.lax.fori_loop(0, m, one_chunk, (V, delta, k, jnp.max(k)))
+        return V, delta, k, jnp.bool_(True)
+
+    init = (
+        V0.reshape(m, chunk, S),
+        jnp.full((m, chunk), jnp.inf, jnp.float64),
+        jnp.zeros(m, jnp.int32),
+        jnp.bool_(False),
+    )
+    V, delta, k, _ = jax.lax.while_loop(round_cond, round_body, init)
+    return V.reshape(padded, S)[:n], delta.reshape(padded)[:n], k[0]
+
+
+_value_iteration_chunked = jax.jit(_vi_chunked_core, static_argnums=(4, 5, 6, 7))
 
 
 def policy_iteration(P, C, gamma, *, max_iter: int = 1000) -> PIResult:
