@@ -140,7 +140,20 @@ def per_sample_loss(model: LinearOffsetModel, W, dx, du, dx_next, t=None) -> jax
     """||Δx' − prediction||² per row [b] (the paper's squared prediction error)."""
     dx, du, t, W = _check_rows(model, dx, du, dx_next, t, W)
     pred = _predict(*_AB(model), W.astype(jnp.float64), dx, du, t)
-    return jnp.sum((jnp.asarray(dx_next, dtype=jnp.float64) - pred) ** 2, axis=-1)
+    return sum_last((jnp.asarray(dx_next, dtype=jnp.float64) - pred) ** 2)
+
+
+def sum_last(x) -> jax.Array:
+    """``x [..., k] -> [...]``: the sum over the last axis in one fixed order, x₀ + x₁ + ... (k
+    elementwise adds). ``jnp.sum`` over a short last axis is vectorised by XLA's CPU backend in a
+    way that depends on how many rows there are, so under ``vmap`` a seed's sum could change in
+    its last bit with the number of seeds beside it; this one does not
+    (:mod:`loopid.experiments.chunks`)."""
+    x = jnp.asarray(x)
+    total = x[..., 0]
+    for i in range(1, x.shape[-1]):
+        total = total + x[..., i]
+    return total
 
 
 def to_matrices(model: LinearOffsetModel, W) -> tuple[jax.Array, jax.Array]:
