@@ -418,6 +418,34 @@ def make_cell(
     return Cell(start, step, noise_program(plant, n_test, test_policy))
 
 
+def program_bytes(compiled) -> int:
+    """Peak bytes of one compiled program by XLA's buffer assignment: arguments + outputs +
+    temporaries − the argument buffers its outputs reuse (donation)."""
+    m = compiled.memory_analysis()
+    return int(
+        m.argument_size_in_bytes + m.output_size_in_bytes + m.temp_size_in_bytes
+        - m.alias_size_in_bytes
+    )  # fmt: skip
+
+
+def cell_memory(cell: Cell, seeds: int, *, test_only: bool = False) -> int:
+    """Peak bytes of a :class:`Cell`'s programs for ``seeds`` seeds (:func:`program_bytes`): the
+    larger of the test-noise program and one ``step`` (which holds the noise, the carry and the
+    row). ``test_only``: the noise program alone (a fixed policy's test, or the policy-gradient
+    baseline's, reads the noise in place and keeps one state per trajectory).
+
+    Both programs are compiled for ``seeds`` seeds exactly as :func:`run_learning` calls them,
+    so a run of that many seeds in this process reuses the compilation (JAX's executable cache)."""
+    keys = jax.ShapeDtypeStruct((int(seeds),), jax.random.key(0).dtype)
+    noise = jax.eval_shape(cell.noise, keys)
+    peak = program_bytes(cell.noise.lower(keys).compile())
+    if test_only:
+        return peak
+    carry = jax.eval_shape(lambda k, w: cell.start(k, w)[0], keys, noise)
+    args = (carry, keys, noise, jnp.int32(1), jnp.float64(0.0), jnp.int32(0))
+    return max(peak, program_bytes(cell.step.lower(*args).compile()))
+
+
 def run_learning(
     plant: LoopPlant,
     agent: Agent,
@@ -511,6 +539,28 @@ def run_fixed_policy(
     _, rows = drive(lambda: (None, row), lambda carry, n: (carry, row), iterations, progress)
     S = noise.shape[2]
     return _trace(seeds, samples, rows, {"K": jnp.broadcast_to(K, (S, *K.shape))})
+
+
+#: The fewest seeds a compiled cell computes at once. XLA's CPU backend lowers a batch of one or
+#: two seeds differently from larger ones (measured: a seed's rows then differ in their last
+#: bits, which a diverging test trajectory amplifies), so :func:`at_least` pads smaller runs and a
+#: seed's numbers are the same however many seeds run beside it
+#: (:mod:`loopid.experiments.chunks`).
+MIN_SEEDS = 3
+
+
+def at_least(run: Callable[[np.ndarray], Trace], seeds) -> Trace:
+    """``run(seeds)`` on at least :data:`MIN_SEEDS` seeds (padded with copies of the last), its
+    :class:`Trace` cut back to ``seeds``."""
+    seeds = np.asarray(seeds)
+    if seeds.ndim != 1 or seeds.size == 0 or seeds.size >= MIN_SEEDS:
+        return run(seeds)
+    padded = np.concatenate([seeds, np.full(MIN_SEEDS - seeds.size, seeds[-1], seeds.dtype)])
+    trace = run(padded)
+    n = seeds.size
+    cut = jax.tree_util.tree_map(lambda a: a[:n], trace.rows)
+    final = None if trace.final is None else {k: v[:n] for k, v in trace.final.items()}
+    return trace._replace(seeds=seeds, rows=cut, final=final)
 
 
 def _trace(seeds, samples: int, rows: list[Row], final: dict | None = None) -> Trace:

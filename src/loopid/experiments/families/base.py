@@ -61,6 +61,9 @@ class Family:
       evaluate: ``evaluate(config, K [S, ...], seeds, episodes, env) -> costs [S, episodes]``:
         saved policies on fresh test episodes (noise the run never saw; ``env``: another
         Gymnasium id, gym only); None when the family cannot.
+      memory: ``memory(config, method, seeds) -> bytes``: the peak memory of one cell's
+        programs for that many seeds (:mod:`loopid.experiments.chunks` sizes chunks with it);
+        None when the family's cells run unchunked (all seeds at once).
     """
 
     name: str
@@ -79,6 +82,7 @@ class Family:
     evaluate: Callable[..., Any] | None = None
     trajectories: Callable[..., Any] | None = None
     animate: Callable[..., Any] | None = None
+    memory: Callable[[Any, str, int], int] | None = None
 
     def field_names(self) -> tuple[str, ...]:
         """The config dataclass's field names."""

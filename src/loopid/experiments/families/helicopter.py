@@ -30,6 +30,8 @@ from loopid.algorithms.loop import (
     EVALUATE,
     Agent,
     Trace,
+    at_least,
+    cell_memory,
     make_cell,
     noise_program,
     run_fixed_policy,
@@ -146,6 +148,10 @@ def run(method: str, s: Scenario, seeds=None, progress: Progress | None = None) 
     """
     M.check_method(method)
     seeds = np.arange(s.seeds) if seeds is None else np.asarray(seeds)
+    return at_least(lambda padded: _run(method, s, padded, progress), seeds)
+
+
+def _run(method: str, s: Scenario, seeds: np.ndarray, progress: Progress | None) -> Trace:
     key = program_key(s)
     st = _setup(key)
     nus, compiled = _cell(key)
@@ -171,6 +177,15 @@ def run(method: str, s: Scenario, seeds=None, progress: Progress | None = None) 
         progress=progress, cell=compiled, which=NU_KINDS.index(M.nu_kind(method)),
         noise=noise,
     )  # fmt: skip
+
+
+def memory(s: Scenario, method: str, seeds: int) -> int:
+    """Peak bytes of the cell's programs for ``seeds`` seeds
+    (:func:`loopid.algorithms.loop.cell_memory`). The expert and the policy-gradient baseline
+    run the test-noise program and a test that reads it (plus, for PG, rollouts of one state per
+    probe), so the noise program is their peak."""
+    M.check_method(method)
+    return cell_memory(_cell(program_key(s))[1], seeds, test_only=method in ("expert", "pg"))
 
 
 def report(table, configs: dict[str, Scenario]) -> list[str]:
@@ -298,4 +313,5 @@ FAMILY = Family(
     evaluate=evaluate,
     trajectories=trajectories,
     animate=animate,
+    memory=memory,
 )

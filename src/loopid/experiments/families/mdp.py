@@ -32,7 +32,7 @@ import jax
 import numpy as np
 
 from loopid.algorithms import methods as M
-from loopid.algorithms.loop import Row, Trace, make_cell, run_learning
+from loopid.algorithms.loop import Row, Trace, at_least, cell_memory, make_cell, run_learning
 from loopid.algorithms.mdp_agent import (
     classifier_model,
     counts_model,
@@ -216,9 +216,12 @@ def run_mdp(
     seeds = list(range(s.seeds)) if seeds is None else list(seeds)
     setup = mdp_setup(s)
     fractions = M.policy_fractions(_FRACTIONS[method], s.iterations)
-    return run_learning(
-        setup.plant, setup.agent, setup.nu, fractions, seeds, samples=s.samples, n_test=1,
-        mode="geometric", gamma=s.gamma, progress=progress, cell=setup.cell,
+    return at_least(
+        lambda padded: run_learning(
+            setup.plant, setup.agent, setup.nu, fractions, padded, samples=s.samples, n_test=1,
+            mode="geometric", gamma=s.gamma, progress=progress, cell=setup.cell,
+        ),
+        np.asarray(seeds),
     )  # fmt: skip
 
 
@@ -410,4 +413,5 @@ FAMILY = Family(
     load=load,
     evaluate=evaluate,
     trajectories=trajectories,
+    memory=lambda s, method, seeds: cell_memory(mdp_setup(s).cell, seeds),
 )
