@@ -16,6 +16,7 @@ per finished cell: rerunning a command resumes it). Bad input exits with code 2 
 naming the bad value; nothing is written then.
 """
 
+import os
 import sys
 import time
 from pathlib import Path
@@ -54,9 +55,9 @@ def _root(
 class _Output:
     """Progress and log lines for a run.
 
-    On a terminal: one rich progress bar per running cell (iterations, elapsed, ETA; cells
-    running at once share one display) and a line per finished cell. Not a terminal
-    (CI logs): the lines only. ``--quiet``: nothing but errors.
+    On a terminal: one rich progress bar per running cell (seeds × iterations done over all its
+    chunks, elapsed, ETA; cells running at once share one display) and a line per finished
+    cell. Not a terminal (CI logs): the lines only. ``--quiet``: nothing but errors.
     """
 
     def __init__(self, quiet: bool):
@@ -76,7 +77,7 @@ class _Output:
         else:
             typer.echo(line, err=True)
 
-    def on_cell(self, scenario: str, method: str, iterations: int):
+    def on_cell(self, scenario: str, method: str, total: int):
         if self.console is None:
             return None
         if self.bars is None:
@@ -93,7 +94,7 @@ class _Output:
                 TextColumn("{task.description}"),
                 BarColumn(),
                 MofNCompleteColumn(),
-                TextColumn("iterations"),
+                TextColumn("seed-iterations"),
                 TimeElapsedColumn(),
                 TimeRemainingColumn(),
                 console=self.console,
@@ -101,11 +102,11 @@ class _Output:
             )
             self.bars.start()
         bars = self.bars
-        task = bars.add_task(f"{scenario} / {method}", total=iterations)
+        task = bars.add_task(f"{scenario} / {method}", total=total)
 
-        def advance(n, row):
-            bars.update(task, completed=n)
-            if n >= iterations:
+        def advance(done: int) -> None:
+            bars.update(task, completed=done)
+            if done >= total:
                 bars.remove_task(task)
 
         return advance
@@ -135,7 +136,7 @@ def _workers(executor: str, workers: int | None) -> int:
     return check_workers(workers)
 
 
-def _execute(out, scenarios, methods, *, quiet, executor, ray_address, workers, t0) -> None:
+def _execute(out, scenarios, methods, *, quiet, executor, ray_address, workers, memory, t0):
     """Run the cells into out, then draw figure.png and write report.md."""
     from loopid.experiments.execute import run_cells, write_outputs
 
@@ -143,7 +144,7 @@ def _execute(out, scenarios, methods, *, quiet, executor, ray_address, workers, 
     try:
         table = run_cells(
             out, scenarios, methods, executor_name=executor, ray_address=ray_address,
-            workers=workers, on_cell=output.on_cell, log=output.log,
+            workers=workers, memory=memory, on_cell=output.on_cell, log=output.log,
         )  # fmt: skip
     finally:
         output.close()
@@ -162,6 +163,12 @@ RAY_ADDRESS = typer.Option(
     None, "--ray-address", help="Join this Ray cluster (default: start a local one)."
 )
 QUIET = typer.Option(False, "--quiet", help="No progress output (errors only).")
+MEMORY = typer.Option(
+    None,
+    "--memory",
+    help="Memory budget in GB of the processes computing at once; a cell that does not fit runs "
+    "in seed chunks (default: 60% of the memory available, less 1.5 GB per process).",
+)
 SEEDS = typer.Option(None, "--seeds", help="Number of seeds (default 20; --quick 2).")
 
 
@@ -238,6 +245,7 @@ def run(
     executor: str = EXECUTOR,
     ray_address: str = RAY_ADDRESS,
     workers: int = WORKERS,
+    memory: float = MEMORY,
 ) -> None:
     """Run one scenario's methods on every seed into a run directory.
 
@@ -262,7 +270,7 @@ def run(
         chosen = list(family.default_methods(s))
     _execute(
         out, [s], chosen, quiet=quiet, executor=executor, ray_address=ray_address,
-        workers=workers, t0=t0,
+        workers=workers, memory=memory, t0=t0,
     )  # fmt: skip
 
 
@@ -277,6 +285,7 @@ def reproduce(
     executor: str = EXECUTOR,
     ray_address: str = RAY_ADDRESS,
     workers: int = WORKERS,
+    memory: float = MEMORY,
 ) -> None:
     """The paper's Figure 2 (hover, hover with delay 1, the nose-in funnel; every method) in
     OUT, and the finite-MDP study in OUT/mdp."""
@@ -292,14 +301,14 @@ def reproduce(
     scenarios = [s.replace(**changes) for s in SCENARIOS.values()]
     _execute(
         out, scenarios, list(METHODS), quiet=quiet, executor=executor, ray_address=ray_address,
-        workers=workers, t0=t0,
+        workers=workers, memory=memory, t0=t0,
     )  # fmt: skip
     # the extra figure: the finite-MDP study, where the paper's bounds are exact
     mdp_changes = {k: v for k, v in changes.items() if k in ("iterations", "seeds")}
     scenarios = [mdp.MDP_SCENARIOS[n].replace(**mdp_changes) for n in ("mdp-random", "mdp-trap")]
     _execute(
         out / "mdp", scenarios, list(mdp.MDP_METHODS), quiet=quiet, executor=executor,
-        ray_address=ray_address, workers=workers, t0=t0,
+        ray_address=ray_address, workers=workers, memory=memory, t0=t0,
     )  # fmt: skip
 
 
@@ -320,6 +329,7 @@ def study(
     executor: str = EXECUTOR,
     ray_address: str = RAY_ADDRESS,
     workers: int = WORKERS,
+    memory: float = MEMORY,
 ) -> None:
     """Every reading of the paper's open details (SPEC 5), one factor at a time: study.md,
     study.parquet and one figure per group of readings."""
@@ -353,7 +363,7 @@ def study(
     try:
         table = run_cells(
             out, scenarios, methods, executor_name=executor, ray_address=ray_address,
-            workers=workers, on_cell=output.on_cell, log=output.log,
+            workers=workers, memory=memory, on_cell=output.on_cell, log=output.log,
         )  # fmt: skip
     finally:
         output.close()
@@ -447,4 +457,12 @@ def main(argv: list[str] | None = None) -> None:
             sys.exit(2)
         typer.echo(f"loopid: error: {' '.join(message.split())}", err=True)
         sys.exit(2)
+    except Exception as e:  # a failure, not bad input: one line (LOOPID_DEBUG=1 shows it all)
+        if os.environ.get("LOOPID_DEBUG"):
+            raise
+        message = " ".join(str(e).split()) or "no message"
+        if "RESOURCE_EXHAUSTED" in message or "Out of memory" in message:
+            message = "out of memory; lower --memory, --workers or --seeds"
+        typer.echo(f"loopid: error: {type(e).__name__}: {message[:500]}", err=True)
+        sys.exit(1)
     sys.exit(code if isinstance(code, int) else 0)

@@ -25,9 +25,9 @@ def fake_cell(s, method, seeds, progress=None):
     return pa.table({"cell": [f"{s.name}/{method}"], "pid": [os.getpid()], "seeds": [len(seeds)]})
 
 
-def jobs(methods=("a", "b", "c"), iterations=3):
+def jobs(methods=("a", "b", "c"), iterations=3, seeds=(0, 1)):
     return [
-        Job(scenario(name, iterations=iterations), m)
+        Job(scenario(name, iterations=iterations), m, np.asarray(seeds))
         for name in ("hover", "hover-delay", "funnel")
         for m in methods
     ]
@@ -52,12 +52,13 @@ def test_workers_compute_every_cell_once_with_its_progress():
     js = jobs()
     seen: dict = {}
 
-    def on_cell(name, method, iterations):
-        assert (name, method) not in seen  # called once per cell, when it starts
+    def on_job(job):
+        name, method = job.scenario.name, job.method
+        assert (name, method) not in seen  # called once per job, when it starts
         seen[(name, method)] = []
         return lambda n, row: seen[(name, method)].append((n, int(row["n"])))
 
-    done = list(run_local(js, [0, 1], fake_cell, on_cell=on_cell, workers=2))
+    done = list(run_local(js, fake_cell, on_job=on_job, workers=2))
 
     def key(j):
         return (j.scenario.name, j.method)
@@ -73,14 +74,14 @@ def test_workers_compute_every_cell_once_with_its_progress():
 
 
 def test_one_worker_runs_in_this_process():
-    done = list(run_local(jobs(methods=("a",)), [0], fake_cell, workers=1))
+    done = list(run_local(jobs(methods=("a",), seeds=(0,)), fake_cell, workers=1))
     assert [t.column("pid")[0].as_py() for _, t in done] == [os.getpid()] * 3
 
 
 def test_a_failing_cell_raises_in_the_caller():
     js = jobs(methods=("a", "boom"), iterations=1)
     with pytest.raises(RuntimeError, match="boom"):
-        list(run_local(js, [0], fake_cell, workers=2))
+        list(run_local(js, fake_cell, workers=2))
 
 
 def test_default_workers_is_one_per_cpu_up_to_the_cap(monkeypatch):

@@ -61,7 +61,7 @@ def test_pendulum_with_workers_and_ray_gives_one_table(tmp_path, cache):
     table = pq.read_table(tmp_path / "two" / "results.parquet")
     assert table.num_rows == 3 * 2 * 3 and set(table["scenario"].to_pylist()) == {"gym"}
     written = tomllib.loads((tmp_path / "two" / "config.toml").read_text())
-    assert written["run"]["family"] == "gym" and written["run"]["seeds"] == [0, 1]
+    assert written["run"]["family"] == "gym" and written["run"]["seeds"] == 2
     assert written["scenario"]["gym"]["iterations"] == 3  # the option won over the file's 10
     assert "| dagger |" in (tmp_path / "two" / "report.md").read_text()
     # the first policy (A = I, B = 0: it does not act) lets the pendulum fall; DAgger's third

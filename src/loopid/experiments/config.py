@@ -22,6 +22,26 @@ def seed_list(config) -> np.ndarray:
     return np.asarray(seeds, dtype=np.int64)
 
 
+def seeds_value(seeds) -> int | dict | list[int]:
+    """The seeds as ``config.toml`` records them: a count ``n`` for 0..n−1, ``{start, count}``
+    for another run of consecutive seeds, else the list (:func:`seeds_from_value` inverts it)."""
+    seeds = np.asarray(seeds, dtype=np.int64)
+    if seeds.size and np.array_equal(seeds, np.arange(seeds[0], seeds[0] + seeds.size)):
+        if seeds[0] == 0:
+            return int(seeds.size)
+        return {"start": int(seeds[0]), "count": int(seeds.size)}
+    return [int(s) for s in seeds]
+
+
+def seeds_from_value(value) -> np.ndarray:
+    """The seed array of a :func:`seeds_value` (or of an older ``config.toml``'s list)."""
+    if isinstance(value, dict):
+        return np.arange(value["start"], value["start"] + value["count"], dtype=np.int64)
+    if isinstance(value, int):
+        return np.arange(value, dtype=np.int64)
+    return np.asarray(value, dtype=np.int64)
+
+
 def replaced(config, changes: dict, what: str = "scenario"):
     """A copy of the frozen dataclass ``config`` with ``changes`` (validated again by its
     ``__post_init__``); unknown field names raise ``ValueError`` naming them."""

@@ -1,15 +1,25 @@
 """Running a set of cells (scenario × method) into a run directory, with progress and resume,
 for any family (:mod:`loopid.experiments.families`).
 
-:func:`run_cells` checks everything, prepares the run directory (refusing one made with another
-configuration), then hands the unfinished cells to an executor
-(:mod:`loopid.experiments.executors`) and saves each cell the moment it finishes (atomically),
-rewriting ``results.parquet`` in the fixed scenario × method order. Rerunning the same call
-skips the finished cells and ends with the same table, row for row. :func:`write_outputs` draws
-``figure.png`` and writes ``report.md`` through the run's family. One run directory holds one
-family's scenarios.
+:func:`run_cells` checks everything before anything is written (the cells, the executor, the
+workers against the machine's CPUs and memory, that ``out`` can be written, that a run
+directory already there holds the same configuration), then:
+
+1. estimates each unfinished cell's memory (the family's ``memory``, through the executor) and
+   splits cells that do not fit the budget into seed chunks (:mod:`loopid.experiments.chunks`);
+2. hands the tasks (whole cells and chunks) to an executor
+   (:mod:`loopid.experiments.executors`) and saves each the moment it finishes, atomically: a
+   cell's artifacts, then its rows; a chunk's files, merged into its cell's once all are in;
+3. rewrites ``results.parquet`` in the fixed scenario × method order after every cell.
+
+Rerunning the same call skips what is finished and ends with the same table, row for row. The
+run directory and its ``config.toml`` are created when the first task finishes, so a run that
+finishes nothing leaves nothing behind. :func:`write_outputs` draws ``figure.png`` and writes
+``report.md`` through the run's family. One run directory holds one family's scenarios.
 """
 
+import os
+import tempfile
 import time
 import tomllib
 from collections.abc import Callable, Mapping, Sequence
@@ -21,8 +31,8 @@ import pyarrow as pa
 
 import loopid
 from loopid.algorithms.loop import Row
-from loopid.experiments import artifacts
-from loopid.experiments.config import seed_list
+from loopid.experiments import artifacts, chunks
+from loopid.experiments.config import seed_list, seeds_value
 from loopid.experiments.executors import (
     Job,
     check_executor,
@@ -38,8 +48,10 @@ from loopid.experiments.rundir import RunDir
 #: A scenario of any family (its config dataclass).
 Scenario = Any
 
-#: ``on_cell(scenario, method, iterations) -> per-iteration callback`` (for progress bars).
-ProgressFactory = Callable[[str, str, int], Callable[[int, Row], None] | None]
+#: ``on_cell(scenario, method, total) -> advance(completed)`` (for progress bars): a cell's work
+#: is ``total`` = seeds × iterations; ``advance`` is called with the seed-iterations done so far
+#: over all its chunks.
+ProgressFactory = Callable[[str, str, int], Callable[[int], None] | None]
 
 
 #: The methods of a run: one list for every scenario, or a list per scenario name.
@@ -64,7 +76,7 @@ def resolved_config(scenarios: Sequence[Scenario], methods: Methods, seeds) -> d
             "loopid_version": loopid.__version__,
             "family": family_of(scenarios[0]).name,
             "methods": listed,
-            "seeds": [int(s) for s in seeds],
+            "seeds": seeds_value(seeds),
         },
         "scenario": {s.name: s.to_dict() for s in scenarios},
     }
@@ -102,6 +114,49 @@ def run_cell(
     family = family_of(s)
     shared = family.shared(s, method) if family.shared is not None else {}
     return CellResult(table, np.asarray(trace.seeds), dict(trace.final or {}), shared)
+
+
+def _out_of_memory(e: BaseException) -> bool:
+    text = str(e)
+    return isinstance(e, MemoryError) or "RESOURCE_EXHAUSTED" in text or "Out of memory" in text
+
+
+def run_chunk(
+    s: Scenario, method: str, seeds, progress: Callable[[int, Row], None] | None = None
+) -> CellResult:
+    """What an executor runs: :func:`run_cell` on a whole cell's or one chunk's seeds; an
+    out-of-memory error from JAX becomes one line saying what to lower."""
+    try:
+        return run_cell(s, method, seeds, progress)
+    except Exception as e:
+        if _out_of_memory(e):
+            raise ValueError(
+                f"{s.name} / {method}: out of memory running {len(seeds)} seeds at once; lower "
+                "--memory (chunks are sized to it) or --workers"
+            ) from None
+        raise
+
+
+def estimate_memory(s: Scenario, method: str, seeds, progress=None) -> int:
+    """What an executor runs to plan a cell: the family's ``memory`` for ``len(seeds)`` seeds
+    (compiling the cell's programs for that many seeds, which its run then reuses)."""
+    return int(family_of(s).memory(s, method, len(seeds)))
+
+
+def check_writable(out) -> None:
+    """``ValueError`` in one line unless a run directory can be created and written at ``out``
+    (tried with a temporary file in its nearest existing folder; nothing is left behind)."""
+    out = Path(out)
+    existing = out
+    while not existing.exists() and existing != existing.parent:
+        existing = existing.parent
+    if not existing.is_dir():
+        raise ValueError(f"--out {str(out)!r}: {str(existing)!r} is not a directory")
+    try:
+        with tempfile.TemporaryFile(dir=existing):
+            pass
+    except OSError as e:
+        raise ValueError(f"--out {str(out)!r} cannot be written ({e.strerror or e})") from None
 
 
 def check_cells(scenarios: Sequence[Scenario], methods: Methods, seeds) -> np.ndarray:
@@ -146,6 +201,7 @@ def run_cells(
     executor_name: str = "local",
     ray_address: str | None = None,
     workers: int = 1,
+    memory: float | None = None,
     on_cell: ProgressFactory | None = None,
     log: Callable[[str], None] | None = None,
 ) -> pa.Table:
@@ -155,49 +211,134 @@ def run_cells(
     ``{scenario name: list}``. ``seeds`` defaults to the first scenario's
     (:func:`loopid.experiments.config.seed_list`; all scenarios of one run share the seeds).
     ``executor_name``: ``local`` or ``ray`` (``ray_address`` joins a cluster). ``workers``: the
-    local executor's worker processes (1: in this process). Each finished cell is saved at once
-    (atomically), its artifacts (:mod:`.artifacts`) before its rows; ``results.parquet`` is
-    rewritten after every cell.
+    local executor's worker processes (1: in this process). ``memory``: the memory budget in GB
+    of all the processes computing at once (default: :func:`loopid.experiments.chunks.budget`);
+    cells that do not fit run in seed chunks. Each finished cell is saved at once (atomically),
+    its artifacts (:mod:`.artifacts`) before its rows; ``results.parquet`` is rewritten after
+    every cell.
     """
     seeds = check_cells(scenarios, methods, seeds)
     check_executor(executor_name, ray_address)
+    chunks.check_memory(memory)
     options = {"workers": check_workers(workers)} if executor_name == "local" else {}
+    if executor_name == "local" and workers > 1:
+        chunks.check_processes(workers)
+    check_writable(out)
     if executor_name == "ray":
         import ray
 
         if not ray.is_initialized():  # connect before anything is written (a bad address)
             with ray_session(ray_address):
                 return run_cells(
-                    out, scenarios, methods, seeds, executor_name="ray", on_cell=on_cell, log=log
-                )
+                    out, scenarios, methods, seeds, executor_name="ray", memory=memory,
+                    on_cell=on_cell, log=log,
+                )  # fmt: skip
     rd = RunDir(out)
-    rd.prepare(resolved_config(scenarios, methods, seeds))
+    config = resolved_config(scenarios, methods, seeds)
+    rd.prepare(config, create=False)
     order = [(s.name, m) for s in scenarios for m in methods_of(methods, s)]
-    jobs = []
+    family = family_of(scenarios[0])
+    todo = []
     for s in scenarios:
         for m in methods_of(methods, s):
             if rd.done(s.name, m):
                 if log:
                     log(f"{s.name} / {m}: already finished, skipped")
             else:
-                jobs.append(Job(s, m))
-    family = family_of(scenarios[0]).name
-    for job, done in executor(executor_name)(jobs, seeds, run_cell, on_cell=on_cell, **options):
-        name, t0 = job.scenario.name, time.perf_counter()
-        artifacts.write(rd.cells, name, job.method, family, done.seeds, done.final,
-                        job.scenario.to_dict(), done.shared)  # fmt: skip
+                todo.append((s, m))
+    processes = options.get("workers", 1) if executor_name == "local" else (os.cpu_count() or 1)
+    limit = chunks.budget(memory, processes)  # each process computing at once gets its share
+    jobs = _plan(rd, todo, seeds, family, limit, executor_name, options)
+    cell_progress = _progress(rd, todo, seeds, on_cell)
+    for job, done in executor(executor_name)(jobs, run_chunk, on_job=cell_progress, **options):
+        s, method = job.scenario, job.method
+        rd.ensure(config)
+        count = job.part[1] - job.part[0]
+        if len(job.seeds) > count:  # seed-major rows: drop the padding
+            table = done.table.slice(0, count * s.iterations)
+            final = _first(done.final, count)
+            done = CellResult(table, seeds[slice(*job.part)], final, done.shared)
+        chunked = count < len(seeds)
+        if chunked:
+            files = chunks.ChunkFiles(rd.cells, s.name, method)
+            files.save(chunks.Chunk(*job.part, job.seeds), done.table, done.final)
+            if files.missing(len(seeds)):
+                continue
+            table, final = files.merged()
+            done = CellResult(table, seeds, final, done.shared)
+        t0 = time.perf_counter()
+        artifacts.write(rd.cells, s.name, method, family.name, done.seeds, done.final,
+                        s.to_dict(), done.shared)  # fmt: skip
         table = with_metadata(done.table, artifacts_s=f"{time.perf_counter() - t0:.3f}")
-        rd.save_cell(name, job.method, table)  # last: a finished cell has its artifacts
+        rd.save_cell(s.name, method, table)  # last: a finished cell has its artifacts
+        if chunked:
+            chunks.ChunkFiles(rd.cells, s.name, method).remove()
         rd.write_results(order)
         if log:
-            meta = rd.cell_metadata(job.scenario.name, job.method)
-            last = np.asarray(table.column("iteration")) == job.scenario.iterations
+            meta = rd.cell_metadata(s.name, method)
+            last = np.asarray(table.column("iteration")) == s.iterations
             final = np.median(np.asarray(table.column("test_cost"))[last])
+            parts = f", {meta['chunks']} chunks" if "chunks" in meta else ""
             log(
-                f"{job.scenario.name} / {job.method}: {float(meta['wall_s']):.1f} s, "
+                f"{s.name} / {method}: {float(meta['wall_s']):.1f} s{parts}, "
                 f"final median cost {final:.4g}"
             )
+    if not rd.exists():
+        return rd.write_results(order, save=False)
     return rd.write_results(order)
+
+
+def _first(final: dict, count: int) -> dict:
+    return {k: np.asarray(v)[:count] for k, v in final.items()}
+
+
+def _plan(rd: RunDir, todo, seeds: np.ndarray, family: Family, limit: int, executor_name, options):
+    """The tasks of the unfinished cells: each cell's missing seeds in chunks that fit ``limit``
+    bytes; a cell that fits whole is one chunk (and is saved as a cell, with no chunk files)."""
+    missing = {(s.name, m): chunks.ChunkFiles(rd.cells, s.name, m).missing(len(seeds))
+               for s, m in todo}  # fmt: skip
+    least = chunks.MIN_CHUNK if family.memory else 1  # chunked families: one lowering a seed
+    whole = {key: chunks.split(seeds, left, len(left), least) for key, left in missing.items()}
+    estimates = [Job(s, m, whole[s.name, m][0].seeds) for s, m in todo if family.memory]
+    sizes = {}
+    for job, nbytes in executor(executor_name)(estimates, estimate_memory, **options):
+        where = f"{job.scenario.name} / {job.method}"
+        sizes[job.scenario.name, job.method] = chunks.chunk_size(
+            nbytes, len(job.seeds), limit, where
+        )
+    jobs = []
+    for s, m in todo:
+        left = missing[s.name, m]
+        parts = chunks.split(seeds, left, sizes.get((s.name, m), len(left)), least)
+        jobs += [Job(s, m, c.seeds, (c.start, c.stop)) for c in parts]
+    return jobs
+
+
+def _progress(rd: RunDir, todo, seeds: np.ndarray, on_cell: ProgressFactory | None):
+    """``on_job(job) -> callback(n, row)``: one bar per cell over seeds × iterations, its
+    chunks' iterations adding up (saved chunks count as done)."""
+    if on_cell is None:
+        return None
+    bars: dict = {}
+
+    def on_job(job: Job):
+        s = job.scenario
+        key = (s.name, job.method)
+        if key not in bars:
+            saved = len(seeds) - len(chunks.ChunkFiles(rd.cells, *key).missing(len(seeds)))
+            bars[key] = (on_cell(s.name, job.method, len(seeds) * s.iterations), {}, saved)
+        advance, parts, saved = bars[key]
+        count = job.part[1] - job.part[0]
+        if advance is None:
+            return None
+
+        def tick(n: int, row) -> None:
+            parts[job.part] = n * count
+            advance(saved * s.iterations + sum(parts.values()))
+
+        return tick
+
+    return on_job
 
 
 def run_family(run_dir) -> tuple[Family | None, dict[str, Scenario]]:

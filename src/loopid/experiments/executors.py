@@ -15,9 +15,12 @@
   function; ``address`` joins an existing cluster, otherwise a local Ray is started with the
   machine's CPUs and shut down afterwards. Workers use the same compilation cache folder.
 
-An executor is a generator: ``executor(jobs, seeds, cell, on_cell=..., **options)`` yields
-``(job, result)`` as cells finish (in any order), ``result`` being whatever the cell function
-returns (:class:`loopid.experiments.execute.CellResult`); the caller saves each at once.
+An executor is a generator: ``executor(jobs, fn, on_job=..., **options)`` yields ``(job,
+result)`` as jobs finish (in any order), ``result`` being ``fn(scenario, method, seeds,
+progress=...)`` of the job (a cell's chunk: :func:`loopid.experiments.execute.run_chunk`, or its
+memory estimate); the caller saves each at once. A job is one task: a cell whose seeds fit one
+chunk, or one chunk of a larger cell (:mod:`loopid.experiments.chunks`), so local workers and a
+Ray cluster spread a large seed count as they spread cells.
 """
 
 import os
@@ -33,13 +36,17 @@ EXECUTORS = ("local", "ray")
 
 
 class Job(NamedTuple):
-    """One cell: a scenario (any family's config) and a method."""
+    """One task: a scenario (any family's config), a method, the seeds it runs (a whole cell's,
+    or one chunk's) and ``part``: the chunk's ``(start, stop)`` positions in the run's seed list
+    (None for a whole cell)."""
 
     scenario: Any
     method: str
+    seeds: Any = None
+    part: tuple[int, int] | None = None
 
 
-#: ``cell(scenario, method, seeds, progress=None) -> result`` (:func:`execute.run_cell`).
+#: ``fn(scenario, method, seeds, progress=None) -> result`` (:func:`execute.run_chunk`).
 CellFunction = Callable[..., Any]
 
 
@@ -115,26 +122,24 @@ def default_workers() -> int:
 
 def run_local(
     jobs: Sequence[Job],
-    seeds,
     cell: CellFunction,
     *,
-    on_cell: Callable | None = None,
+    on_job: Callable | None = None,
     workers: int = 1,
 ) -> Iterator[tuple[Job, Any]]:
-    """Compute the cells on this machine; ``on_cell(scenario, method, iterations)`` returns a
-    per-iteration progress callback (or None), called when the cell starts.
+    """Compute the jobs on this machine; ``on_job(job)`` returns a per-iteration progress
+    callback (or None), called when the job starts.
 
     ``workers = 1``: in this process, in order. ``workers > 1``: in that many spawned worker
-    processes (at most one per cell), yielding cells as they finish; ``cell`` must then be a
+    processes (at most one per job), yielding jobs as they finish; ``cell`` must then be a
     module-level function (it is pickled by name)."""
     workers = min(check_workers(workers), max(len(jobs), 1))
     if workers > 1:
-        yield from _run_pool(jobs, seeds, cell, on_cell, workers)
+        yield from _run_pool(jobs, cell, on_job, workers)
         return
     for job in jobs:
-        s = job.scenario
-        progress = on_cell(s.name, job.method, s.iterations) if on_cell else None
-        yield job, cell(s, job.method, seeds, progress=progress)
+        progress = on_job(job) if on_job else None
+        yield job, cell(job.scenario, job.method, job.seeds, progress=progress)
 
 
 def spread(jobs: Sequence[Job]) -> list[int]:
@@ -185,14 +190,14 @@ def _pool_cell(cell: CellFunction, index: int, s, method: str, seeds):
     return cell(s, method, seeds, progress=progress)
 
 
-def _run_pool(jobs, seeds, cell, on_cell, workers) -> Iterator[tuple[Job, Any]]:
+def _run_pool(jobs, cell, on_job, workers) -> Iterator[tuple[Job, Any]]:
     import multiprocessing
     from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
 
     import jax
 
     ctx = multiprocessing.get_context("spawn")  # never fork a process that runs XLA threads
-    messages = ctx.Queue() if on_cell else None
+    messages = ctx.Queue() if on_job else None
     cache_dir = jax.config.jax_compilation_cache_dir or compile_cache()
     callbacks: dict[int, Callable | None] = {}
     seen: dict[int, int] = {}  # the last iteration reported per job
@@ -200,8 +205,7 @@ def _run_pool(jobs, seeds, cell, on_cell, workers) -> Iterator[tuple[Job, Any]]:
     def deliver(message) -> None:
         index, n, row = message
         if index not in callbacks:
-            s = jobs[index].scenario
-            callbacks[index] = on_cell(s.name, jobs[index].method, s.iterations)
+            callbacks[index] = on_job(jobs[index])
         seen[index] = n
         if n > 0 and callbacks[index] is not None:
             callbacks[index](n, row)
@@ -222,7 +226,7 @@ def _run_pool(jobs, seeds, cell, on_cell, workers) -> Iterator[tuple[Job, Any]]:
     )  # fmt: skip
     try:
         futures = {
-            pool.submit(_pool_cell, cell, i, jobs[i].scenario, jobs[i].method, seeds): i
+            pool.submit(_pool_cell, cell, i, jobs[i].scenario, jobs[i].method, jobs[i].seeds): i
             for i in spread(jobs)
         }
         pending = set(futures)
@@ -252,19 +256,18 @@ def _ray_cell(cell: CellFunction, s, method: str, seeds, cache_dir: str):
 
 def run_ray(
     jobs: Sequence[Job],
-    seeds,
     cell: CellFunction,
     *,
-    on_cell: Callable | None = None,
+    on_job: Callable | None = None,
     address: str | None = None,
     num_cpus: int | None = None,
 ) -> Iterator[tuple[Job, Any]]:
-    """Compute each cell as a Ray task; yield them as they finish.
+    """Compute each job (a cell, or one chunk of one) as a Ray task; yield them as they finish.
 
     ``address``: an existing cluster (``ray.init(address=...)``); otherwise a local Ray with
     ``num_cpus`` (default: the machine's CPUs), shut down when the generator ends. Workers run
-    ``cell`` (a module-level function); ``on_cell`` is accepted for the common signature (the
-    driver sees a cell when it is finished).
+    ``cell`` (a module-level function); ``on_job`` is accepted for the common signature (the
+    driver sees a job when it is finished).
     """
     import ray
 
@@ -274,7 +277,7 @@ def run_ray(
         task = ray.remote(num_cpus=1, max_retries=0)(_ray_cell)
         cache_dir = jax.config.jax_compilation_cache_dir or compile_cache()
         pending = {
-            task.remote(cell, job.scenario, job.method, seeds, cache_dir): job for job in jobs
+            task.remote(cell, job.scenario, job.method, job.seeds, cache_dir): job for job in jobs
         }
         while pending:
             done, _ = ray.wait(list(pending), num_returns=1)

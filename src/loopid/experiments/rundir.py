@@ -2,7 +2,8 @@
 
 Layout of ``DIR``::
 
-    config.toml           the resolved configuration (scenarios, methods, seeds, version)
+    config.toml           the resolved configuration (scenarios, methods, seeds, version); the
+                          seeds as a count, a {start, count} range or, when given so, a list
     cells/S__M.parquet    one file per finished cell (scenario S × method M), written atomically;
                           its metadata holds the cell's wall time
     results.parquet       all finished cells, in a fixed order (rewritten after every cell)
@@ -20,12 +21,21 @@ from pathlib import Path
 import pyarrow as pa
 import tomli_w
 
+from loopid.experiments.config import seeds_from_value, seeds_value
 from loopid.experiments.results import concat, metadata, read_table, write_atomic
 
 
 def to_toml(config: dict) -> str:
     """``config`` (tables of TOML values) as TOML text (tomli-w)."""
     return tomli_w.dumps(config)
+
+
+def _normal(config: dict) -> dict:
+    """``config`` with its seeds in today's form (older ``config.toml`` files list them all)."""
+    run = dict(config.get("run", {}))
+    if "seeds" in run:
+        run["seeds"] = seeds_value(seeds_from_value(run["seeds"]))
+    return {**config, "run": run}
 
 
 class RunDir:
@@ -35,17 +45,30 @@ class RunDir:
         self.path = Path(path)
         self.cells = self.path / "cells"
 
-    def prepare(self, config: dict) -> None:
-        """Create the directory for ``config``, or check an existing one has the same config."""
+    def prepare(self, config: dict, create: bool = True) -> None:
+        """Check that an existing directory holds a run of the same ``config`` (``ValueError``
+        otherwise); ``create``: also create the directory and its ``config.toml`` now (else
+        :meth:`ensure` does when the first result is saved)."""
         cfg_file = self.path / "config.toml"
         if cfg_file.exists():
             old = tomllib.loads(cfg_file.read_text())
             new = tomllib.loads(to_toml(config))
-            if old != new:
+            if _normal(old) != _normal(new):
                 raise ValueError(
                     f"{self.path} holds a run with a different configuration; "
                     "use another --out directory"
                 )
+            return
+        if create:
+            self.ensure(config)
+
+    def exists(self) -> bool:
+        return (self.path / "config.toml").is_file()
+
+    def ensure(self, config: dict) -> None:
+        """Create the directory, ``cells/`` and ``config.toml`` if they are not there yet."""
+        cfg_file = self.path / "config.toml"
+        if cfg_file.exists():
             return
         self.cells.mkdir(parents=True, exist_ok=True)
         tmp = cfg_file.with_name(".config.toml.tmp")
@@ -61,10 +84,12 @@ class RunDir:
     def save_cell(self, scenario: str, method: str, table: pa.Table) -> None:
         write_atomic(table, self.cell_file(scenario, method))
 
-    def write_results(self, order: list[tuple[str, str]]) -> pa.Table:
-        """Concatenate the finished cells in ``order`` into ``results.parquet``; return it."""
+    def write_results(self, order: list[tuple[str, str]], save: bool = True) -> pa.Table:
+        """Concatenate the finished cells in ``order`` into ``results.parquet`` (``save``);
+        return it."""
         table = concat([read_table(self.cell_file(s, m)) for s, m in order if self.done(s, m)])
-        write_atomic(table, self.path / "results.parquet")
+        if save:
+            write_atomic(table, self.path / "results.parquet")
         return table
 
     def cell_metadata(self, scenario: str, method: str) -> dict[str, str]:

@@ -1,0 +1,237 @@
+"""Seed chunks: a cell's seeds run in equal chunks that fit a memory budget.
+
+A cell runs all its seeds as one vmapped program, so its memory grows with the seed count
+(the helicopter's hover: about 5.8 MB per seed, mostly the 100 test trajectories' noise,
+``[400 steps, 6, 100]`` float64, while it is drawn). Above a budget the seeds are split:
+
+- **Estimate.** A family's ``memory(config, method, seeds) -> bytes`` gives the peak bytes of
+  the cell's compiled programs for that many seeds, from XLA's own buffer assignment
+  (:func:`loopid.algorithms.loop.cell_memory`): arguments + outputs + temporaries − donated
+  buffers, the largest over the programs a cell runs one after another. It is computed at the
+  cell's full seed count; the compilation it needs is the one the cell then runs (JAX reuses it
+  in the same process, the persistent compilation cache elsewhere).
+- **Budget** (:func:`budget`): ``--memory GB`` for all the processes computing at once, else
+  :data:`DEFAULT_FRACTION` of the memory this machine has available (``MemAvailable``, within a
+  cgroup's limit) less :data:`PROCESS_BYTES` per process; each process gets an equal share.
+- **Chunks** (:func:`chunk_size`, :func:`split`): the programs' memory is affine in the seed count,
+  ``a + b·S`` with ``a ≥ 0``, so ``b ≤ M(S)/S`` and ``c = ⌊S · budget / M(S)⌋`` seeds fit. The
+  seeds are split into ``k = ⌈S / c⌉`` chunks of ``⌈S / k⌉``; the last is padded with copies
+  of its last seed (dropped afterwards), so every chunk runs one compiled program.
+- **Same numbers.** Each seed's computation is its own under ``vmap`` (its keys come from its
+  seed alone), and the one reduction whose XLA lowering changed with the batch size (the model's
+  squared error over a state's components) is written in a fixed order
+  (:func:`loopid.models.linear_offset.sum_last`). Batches of one or two seeds are lowered
+  differently again (measured: a seed's rows then differ in the last bits, which a diverging
+  test trajectory amplifies), so every program runs at least :data:`MIN_CHUNK` seeds, padding
+  if it must (:func:`loopid.algorithms.loop.at_least`, so a direct ``family.run`` of two seeds
+  gives the same numbers as a run directory's cell). With both, a seed's rows are bit for bit
+  the same whatever chunk it ran in (measured on hover, hover-delay and the funnel at chunks of
+  3-6 against one chunk of 7-13; ``tests/experiments/test_chunks.py``).
+
+Chunk files: ``cells/S__M.chunks/I-J.parquet`` (rows of the seeds at positions I..J−1 of the
+run's seed list) and ``I-J.npz`` (their final arrays), written atomically, arrays first. A killed
+run resumes at the first missing chunk; when every chunk is in, they are merged into the cell's
+usual files and the folder is removed. A cell that fits runs as one chunk, with no chunk files.
+"""
+
+import math
+import os
+import re
+import shutil
+from pathlib import Path
+from typing import NamedTuple
+
+import numpy as np
+import pyarrow as pa
+
+from loopid.algorithms.loop import MIN_SEEDS
+from loopid.experiments.results import concat, metadata, read_table, with_metadata, write_atomic
+
+#: The default budget: this fraction of the machine's available memory (the rest is headroom for
+#: the estimate's error, compilation, Python and other programs).
+DEFAULT_FRACTION = 0.6
+#: What one XLA CPU process holds besides its cells' buffers (the Python interpreter, JAX, the
+#: compiled programs, compilation's own peak): measured 0.6-1.0 GB for a helicopter process, and
+#: 1.5 GB leaves room for larger programs.
+PROCESS_BYTES = 1.5e9
+
+GB = 1e9
+#: The fewest seeds a chunk holds (:data:`loopid.algorithms.loop.MIN_SEEDS`: smaller batches are
+#: lowered differently).
+MIN_CHUNK = MIN_SEEDS
+
+
+def available_bytes() -> int:
+    """The memory this machine can give without swapping: ``MemAvailable`` of /proc/meminfo,
+    within the cgroup's limit (``memory.max`` less ``memory.current``) when there is one; on
+    systems without /proc, the physical memory."""
+    found = None
+    try:
+        for line in Path("/proc/meminfo").read_text().splitlines():
+            if line.startswith("MemAvailable:"):
+                found = int(line.split()[1]) * 1024
+    except OSError:
+        pass
+    if found is None:
+        found = os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES")
+    try:
+        limit = Path("/sys/fs/cgroup/memory.max").read_text().strip()
+        used = int(Path("/sys/fs/cgroup/memory.current").read_text())
+        if limit != "max":
+            found = min(found, int(limit) - used)
+    except (OSError, ValueError):
+        pass
+    return max(int(found), 0)
+
+
+def check_memory(gb) -> float | None:
+    """``--memory GB`` as a positive finite number (None: the default budget)."""
+    if gb is None:
+        return None
+    if isinstance(gb, bool) or not isinstance(gb, int | float) or not math.isfinite(gb) or gb <= 0:
+        raise ValueError(f"--memory must be a positive number of GB, got {gb!r}")
+    return float(gb)
+
+
+def budget(gb: float | None, processes: int = 1) -> int:
+    """Bytes one process's chunk may use: ``gb`` (all processes together) or the default
+    (module docstring), shared equally by ``processes``."""
+    gb = check_memory(gb)
+    if gb is not None:
+        return int(gb * GB / processes)
+    return int(max(DEFAULT_FRACTION * available_bytes() - processes * PROCESS_BYTES, 0) / processes)
+
+
+def check_processes(processes: int, what: str = "--workers") -> None:
+    """Refuse more worker processes than this machine has CPUs, or memory for
+    (:data:`PROCESS_BYTES` each), in one line naming the most it can take."""
+    cpus = os.cpu_count() or 1
+    if processes > cpus:
+        raise ValueError(f"{what} {processes}: this machine has {cpus} CPUs; use at most {cpus}")
+    room = available_bytes()
+    most = int(room // PROCESS_BYTES)
+    if processes > max(most, 1):
+        raise ValueError(
+            f"{what} {processes}: each worker process needs about {PROCESS_BYTES / GB:.1f} GB and "
+            f"{room / GB:.1f} GB is available; use at most {max(most, 1)}"
+        )
+
+
+def _size(nbytes: float) -> str:
+    for unit, scale in (("TB", 1e12), ("GB", 1e9), ("MB", 1e6), ("kB", 1e3)):
+        if nbytes >= scale:
+            return f"{nbytes / scale:.3g} {unit}"
+    return f"{nbytes:.0f} B"
+
+
+def chunk_size(estimate: int, seeds: int, limit: int, where: str) -> int:
+    """The most seeds of a cell whose program estimate is ``estimate`` bytes at ``seeds`` seeds
+    that fit in ``limit`` bytes (at most ``seeds``); ``ValueError`` in one line, naming the
+    estimate and the budget, when not even one does."""
+    if estimate <= limit:
+        return seeds
+    c = int(seeds * limit // max(estimate, 1))
+    if c < MIN_CHUNK:
+        raise ValueError(
+            f"{where}: a chunk of {MIN_CHUNK} seeds needs about "
+            f"{_size(MIN_CHUNK * estimate / seeds)} (estimated for {seeds} seeds: "
+            f"{_size(estimate)}), more than the memory budget of {_size(limit)} per process; "
+            "raise --memory or use fewer --workers"
+        )
+    return c
+
+
+class Chunk(NamedTuple):
+    """Positions ``start..stop−1`` of the run's seed list, run as ``seeds`` (padded to the chunk
+    size with copies of the last seed)."""
+
+    start: int
+    stop: int
+    seeds: np.ndarray
+
+    @property
+    def count(self) -> int:
+        return self.stop - self.start
+
+
+def split(
+    seeds: np.ndarray, positions: list[int], size: int, minimum: int = MIN_CHUNK
+) -> list[Chunk]:
+    """Chunks of at most ``size`` of the seeds at ``positions`` (ascending), as equal as they can
+    be (``k = ⌈P / size⌉`` chunks of ``⌈P / k⌉``, at least ``minimum``), each within one run of
+    consecutive positions and padded to that one size."""
+    if not positions:
+        return []
+    k = -(-len(positions) // size)
+    size = max(-(-len(positions) // k), minimum)
+    runs, first = [], positions[0]
+    for a, b in zip(positions, [*positions[1:], None], strict=True):
+        if b != a + 1:
+            runs.append((first, a + 1))
+            first = b
+    chunks = []
+    for lo, hi in runs:
+        for start in range(lo, hi, size):
+            stop = min(start + size, hi)
+            part = seeds[start:stop]
+            padded = np.concatenate([part, np.full(size - part.size, part[-1], part.dtype)])
+            chunks.append(Chunk(start, stop, padded))
+    return chunks
+
+
+_NAME = re.compile(r"^(\d+)-(\d+)\.parquet$")
+
+
+class ChunkFiles:
+    """The chunk files of one cell (module docstring)."""
+
+    def __init__(self, cells: Path, scenario: str, method: str):
+        self.path = Path(cells) / f"{scenario}__{method}.chunks"
+
+    def _stem(self, start: int, stop: int) -> Path:
+        return self.path / f"{start:09d}-{stop:09d}"
+
+    def finished(self) -> list[tuple[int, int]]:
+        """The ``(start, stop)`` position ranges already saved, in order."""
+        if not self.path.is_dir():
+            return []
+        found = (_NAME.match(p.name) for p in self.path.iterdir())
+        return sorted((int(m[1]), int(m[2])) for m in found if m)
+
+    def missing(self, n: int) -> list[int]:
+        """The positions ``0..n−1`` not in a saved chunk."""
+        done = np.zeros(n, bool)
+        for start, stop in self.finished():
+            done[start:stop] = True
+        return np.flatnonzero(~done).tolist()
+
+    def save(self, chunk: Chunk, table: pa.Table, final: dict) -> None:
+        """One finished chunk: its arrays, then its rows (so a chunk with rows has its arrays)."""
+        self.path.mkdir(parents=True, exist_ok=True)
+        stem = self._stem(chunk.start, chunk.stop)
+        tmp = stem.with_name(f".{stem.name}.npz.tmp-{os.getpid()}")
+        with open(tmp, "wb") as f:
+            np.savez(f, **{k: np.asarray(v) for k, v in final.items()})
+        os.replace(tmp, stem.with_suffix(".npz"))
+        write_atomic(table, stem.with_suffix(".parquet"))
+
+    def merged(self) -> tuple[pa.Table, dict]:
+        """Every chunk's rows in seed-list order (the one-chunk table, row for row), with the
+        summed wall time and the chunk count in the metadata, and their final arrays joined."""
+        tables, finals, wall = [], [], 0.0
+        for start, stop in self.finished():
+            stem = self._stem(start, stop)
+            tables.append(read_table(stem.with_suffix(".parquet")))
+            wall += float(metadata(stem.with_suffix(".parquet")).get("wall_s", 0.0))
+            with np.load(stem.with_suffix(".npz"), allow_pickle=False) as data:
+                finals.append({name: data[name] for name in data.files})
+        first = metadata(self._stem(*self.finished()[0]).with_suffix(".parquet"))
+        table = with_metadata(
+            concat(tables), wall_s=f"{wall:.3f}", first_s=first.get("first_s", "0"),
+            chunks=str(len(tables)),
+        )  # fmt: skip
+        final = {k: np.concatenate([f[k] for f in finals]) for k in finals[0]}
+        return table, final
+
+    def remove(self) -> None:
+        shutil.rmtree(self.path, ignore_errors=True)
