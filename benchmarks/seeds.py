@@ -8,7 +8,7 @@ cell's time after its first chunk's compilation and two iterations (``wall_s −
 cell, per seed and relative to the 20-seed cell: the reference), and the process's peak RSS.
 Cost should grow linearly in the seeds, and the peak stay flat once chunking starts.
 
-    .venv/bin/python benchmarks/seeds.py [--huge]
+    .venv/bin/python benchmarks/seeds.py [--huge] [--sizes 20,200]
 """
 
 import json
@@ -55,6 +55,8 @@ def one(seeds: int) -> dict:
 
 def main() -> None:
     sizes = [20, 200, 2000] + ([10_000] if "--huge" in sys.argv else [])
+    if "--sizes" in sys.argv:  # e.g. --sizes 20,200
+        sizes = [int(x) for x in sys.argv[sys.argv.index("--sizes") + 1].split(",")]
     print(f"hover / dagger-t, 50 iterations, 100 test trajectories; {os.cpu_count()} CPUs")
     head = f"{'seeds':>7}{'chunks':>8}{'command s':>11}{'run s':>9}{'ms/seed':>9}{'ratio':>7}"
     print(head + f"{'peak GB':>9}{'budget GB':>11}")

@@ -125,10 +125,8 @@ _PEAK = textwrap.dedent(
 )
 def test_memory_estimate_within_a_factor_of_two_of_the_measured_peak(name, method, seeds):
     """The process's peak RSS (ru_maxrss) running the cell against its RSS before plus the
-    estimate. Measured 2026-11-25 (2-core machine): hover DAgger ν_t, 300 seeds: estimate 2.05 GB
-    against a peak of 2.2 GB of which 0.19 GB is the interpreter; funnel expert, 300 seeds:
-    similar. The seed counts are large enough that the cell's buffers, not compilation, set the
-    peak."""
+    estimate, within a factor of 2. The seed counts are large enough (300: about 1.7 GB of noise
+    buffers on the hover) that the cell's buffers, not compilation (0.4-0.8 GB), set the peak."""
     out = subprocess.run(
         [sys.executable, "-c", _PEAK, name, method, str(seeds)],
         capture_output=True, text=True, check=True, env={**os.environ, "PYTHONWARNINGS": "ignore"},
