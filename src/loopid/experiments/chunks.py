@@ -24,9 +24,12 @@ A cell runs all its seeds as one vmapped program, so its memory grows with the s
   differently again (measured: a seed's rows then differ in the last bits, which a diverging
   test trajectory amplifies), so every program runs at least :data:`MIN_CHUNK` seeds, padding
   if it must (:func:`loopid.algorithms.loop.at_least`, so a direct ``family.run`` of two seeds
-  gives the same numbers as a run directory's cell). With both, a seed's rows are bit for bit
-  the same whatever chunk it ran in (measured on hover, hover-delay and the funnel at chunks of
-  3-6 against one chunk of 7-13; ``tests/experiments/test_chunks.py``).
+  gives the same numbers as a run directory's cell). With both, a seed's rows were bit for bit
+  the same whatever chunk it ran in on hover, hover-delay and the funnel at chunks of 3-6
+  against one chunk of 7-13 (10 test trajectories). **Not yet everywhere:** hover with 100 test
+  trajectories, chunks of 14 against one of 40, gives the same models, policies and losses but
+  1-ulp differences in 9 of 120 test-cost means and medians (the test rollouts' cost sums still
+  depend on the batch width; open, ``tests/experiments/test_chunks.py``).
 
 Chunk files: ``cells/S__M.chunks/I-J.parquet`` (rows of the seeds at positions I..J−1 of the
 run's seed list) and ``I-J.npz`` (their final arrays), written atomically, arrays first. A killed
