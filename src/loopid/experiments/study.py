@@ -44,6 +44,7 @@ import pyarrow as pa
 import pyarrow.compute as pc
 
 from loopid.algorithms.methods import LEARNING_METHODS, METHODS
+from loopid.experiments.config import seeds_from_value
 from loopid.experiments.results import concat, write_atomic_bytes
 from loopid.experiments.scenarios import READING_FIELDS, SCENARIOS, Scenario, reading_text
 
@@ -138,7 +139,8 @@ def share_cells(out: Path, reproduce: Path, scenarios: Sequence[Scenario], seeds
     from loopid.experiments.rundir import RunDir
 
     config = tomllib.loads((Path(reproduce) / "config.toml").read_text())
-    if [int(x) for x in config.get("run", {}).get("seeds", [])] != [int(x) for x in seeds]:
+    recorded = seeds_from_value(config.get("run", {}).get("seeds", []))
+    if recorded.tolist() != [int(x) for x in seeds]:
         return []
     theirs, ours = RunDir(reproduce), RunDir(out)
     copied = []
