@@ -1,4 +1,5 @@
-"""Gymnasium registration of the helicopter tasks (called once by ``import loopid``)."""
+"""Gymnasium registration of the helicopter tasks and the hanging pendulum (called once by
+``import loopid``)."""
 
 import gymnasium
 
@@ -8,9 +9,12 @@ ENV_IDS = {
     "loopid/HelicopterFunnel-v0": "funnel",
 }
 
+PENDULUM_ID = "loopid/PendulumHanging-v0"
+"""Pendulum-v1 started hanging down (:class:`loopid.systems.pendulum.PendulumHangingEnv`)."""
+
 
 def register_envs() -> None:
-    """Register every helicopter task id; a second call is a no-op."""
+    """Register every id above; a second call is a no-op."""
     for env_id, task in ENV_IDS.items():
         if env_id not in gymnasium.registry:
             gymnasium.register(
@@ -18,3 +22,9 @@ def register_envs() -> None:
                 entry_point="loopid.systems.as_gymnasium:HelicopterEnv",
                 kwargs={"task": task},
             )
+    if PENDULUM_ID not in gymnasium.registry:
+        gymnasium.register(
+            id=PENDULUM_ID,
+            entry_point="loopid.systems.pendulum:PendulumHangingEnv",
+            max_episode_steps=200,
+        )
