@@ -7,6 +7,7 @@ from importlib import resources
 
 import pytest
 
+from loopid.experiments import model_planner
 from loopid.experiments.scenarios import (
     FIELDS,
     SCENARIOS,
@@ -25,7 +26,8 @@ def packaged(name: str) -> dict:
 @pytest.mark.parametrize("name", ["hover", "hover-delay", "funnel"])
 def test_packaged_files_spell_out_every_choice(name):
     d = packaged(name)
-    optional = {"noise_std", "delay"}  # None: the task's own (TOML has no null)
+    # None: the task's own (TOML has no null); the model and planner: the paper's when unset
+    optional = {"noise_std", "delay", *model_planner.FIELDS}
     assert set(d) == set(FIELDS) - optional
     assert SCENARIOS[name] == from_dict(d)
     assert SCENARIOS[name].to_dict() == d  # what config.toml records

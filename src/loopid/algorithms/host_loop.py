@@ -196,12 +196,14 @@ def test_episodes(
     """Capped costs and diverged flags ``[S, n_test]`` of every seed's policy ``K [S, T, m, n]``
     on that seed's test episodes (slot seeds ``SeedSequence([seed, 0, stream])``; the default
     stream 3 gives the same episodes at every iteration, for every method, and for a policy
-    reloaded later; :data:`EVALUATE` gives fresh ones)."""
+    reloaded later; :data:`EVALUATE` gives fresh ones). ``K`` may also be a policy object
+    (``act(obs, t, index)``, the seed's index) such as a model-predictive controller."""
     S = len(seeds)
     slots = [
         Slot(0, s, x, 0.0, False) for s in range(S) for x in slot_seeds(seeds[s], 0, stream, n_test)
     ]
-    r = system.rollouts([system.linear_policy(np.asarray(K))], slots)
+    policy = K if hasattr(K, "act") else system.linear_policy(np.asarray(K))
+    r = system.rollouts([policy], slots)
     costs, div = episode_costs(
         system, r, cost, termination_cost=termination_cost, cost_cap=cost_cap
     )
@@ -222,12 +224,16 @@ def run_learning_host(
     cost_cap: float = 1e8,
     progress: Callable[[int, Row], None] | None = None,
     cell: HostCell | None = None,
+    controller: Callable[[Any, Any], Any] | None = None,
 ) -> Trace:
     """Run one learning method on a host system for ``len(fractions)`` iterations, every seed.
 
     ``fractions[n−1]`` = ``p_n`` (``fractions[0]`` unused); ``cost(obs, action) -> float`` is the
     test cost (:class:`~loopid.systems.from_gymnasium.QuadraticCost` or any callable); ``progress(n,
     row)`` after each iteration; ``cell`` from :func:`make_host_cell` to reuse its compilation.
+    ``controller(learner_states, K) -> policy``: what flies the policy's training and test
+    episodes, given every seed's learner state (leading seed axis) and gains (a model-predictive
+    controller re-plans on the seed's model); default the gains ``K`` themselves.
     """
     fractions = np.asarray(fractions, dtype=np.float64)
     N = int(fractions.shape[0]) if fractions.ndim == 1 else 0
@@ -245,18 +251,23 @@ def run_learning_host(
         cell = make_host_cell(agent, samples=samples, with_nu=nu is not None)
     runs = -(-samples // system.horizon)
 
-    def test(K) -> tuple:
-        costs, div = test_episodes(system, K, seeds, n_test, cost, termination_cost, cost_cap)
+    def flies(carry, K):
+        if controller is None:
+            return system.linear_policy(np.asarray(K))
+        return controller(carry.learner, K)
+
+    def test(policy) -> tuple:
+        costs, div = test_episodes(system, policy, seeds, n_test, cost, termination_cost, cost_cap)
         return costs.mean(1), np.median(costs, axis=1), div.sum(1)
 
     def start():
         carry, K, info = cell.start(jnp.zeros(S))
         zero, count = np.zeros(S), np.zeros(S, np.int64)
-        return (carry, K), _row(*test(K), zero, zero, zero, count, count, info)
+        return (carry, K), _row(*test(flies(carry, K)), zero, zero, zero, count, count, info)
 
     def step(state, n):
         carry, K = state
-        policies = [system.linear_policy(np.asarray(K))]
+        policies = [flies(carry, K)]
         slots = [
             Slot(0, s, x, 0.0, True)
             for s in range(S)
@@ -276,7 +287,7 @@ def run_learning_host(
         carry, K, info, stats = cell.learn(
             carry, pol, from_nu, keys, jnp.int32(n), jnp.float64(fractions[n - 1])
         )
-        return (carry, K), _row(*test(K), *(np.asarray(a) for a in stats), info)
+        return (carry, K), _row(*test(flies(carry, K)), *(np.asarray(a) for a in stats), info)
 
     (carry, K), rows = drive(start, step, N, progress)
     final = {"K": K}

@@ -85,11 +85,16 @@ def read_toml(path, what: str = "--config") -> dict:
         raise ValueError(f"{what} {str(path)!r}: not valid TOML ({e})") from None
 
 
-def read_flat_file(path, allowed: Sequence[str]) -> tuple[dict, list[str] | None]:
+def read_flat_file(
+    path, allowed: Sequence[str], tables: dict | None = None
+) -> tuple[dict, list[str] | None]:
     """A ``--config`` TOML of flat keys, each a config field in ``allowed`` or ``methods`` (a
-    list of method names). Returns ``(fields, methods or None)``; the values are validated when
-    the config is built."""
+    list of method names). ``tables``: ``{table: keys}`` whose keys are read as the fields
+    ``table_key`` (``[model] kind`` -> ``model_kind``). Returns ``(fields, methods or None)``;
+    the values are validated when the config is built."""
     cfg = read_toml(path)
+    if tables:
+        cfg = flatten_tables(cfg, tables, f"--config {str(path)!r}")
     unknown = sorted(set(cfg) - {*allowed, "methods"})
     if unknown:
         raise ValueError(
@@ -104,6 +109,23 @@ def read_flat_file(path, allowed: Sequence[str]) -> tuple[dict, list[str] | None
             f"--config {str(path)!r}: methods must be a list of names, got {methods!r}"
         )
     return cfg, methods
+
+
+def flatten_tables(raw: dict, tables: dict, where: str) -> dict:
+    """``raw`` with each table of ``tables`` (``{table: keys}``) as flat fields ``table_key``;
+    other keys pass through. One-line ``ValueError`` for an unknown key in such a table."""
+    out = {k: v for k, v in raw.items() if k not in tables}
+    for table, keys in tables.items():
+        given = raw.get(table)
+        if given is None:
+            continue
+        if not isinstance(given, dict):
+            raise ValueError(f"{where}: {table} must be a table, got {given!r}")
+        for key, value in given.items():
+            if key not in keys:
+                raise ValueError(f"{where}: unknown key {table}.{key}; allowed: {', '.join(keys)}")
+            out[f"{table}_{key}"] = value
+    return out
 
 
 def parse_assignment(text: str) -> tuple[str, Any]:

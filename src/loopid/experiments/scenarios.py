@@ -17,6 +17,7 @@ from loopid.algorithms.collect import SAMPLING_MODES
 from loopid.algorithms.loop import TEST_POLICIES
 from loopid.algorithms.plant import check_delay_reading
 from loopid.algorithms.policy_gradient import SAMPLES_MODES as PG_SAMPLES
+from loopid.experiments import model_planner
 from loopid.experiments.config import check_int, check_number, read_flat_file, replaced
 from loopid.systems.funnel_nominal import FUNNEL_NOMINALS
 from loopid.systems.tasks import TASK_NAMES
@@ -58,6 +59,8 @@ class Scenario:
       pg_horizon, pg_sigma, pg_step: the policy-gradient baseline's longest rollout (steps),
         perturbation size in action units and first trust radius in probing radii (see
         :mod:`loopid.algorithms.policy_gradient`).
+      model_*, planner_*: the model class and the optimal-control solver
+        (:mod:`loopid.experiments.model_planner`; default the paper's linear model and LQR).
     """
 
     name: str
@@ -86,6 +89,21 @@ class Scenario:
     pg_horizon: int = 600
     pg_sigma: float = 0.01
     pg_step: float = 0.1
+    model_kind: str = "linear"
+    model_features: str = "polynomial"
+    model_degree: int = 3
+    model_count: int = 100
+    model_bandwidth: float = 1.0
+    model_seed: int = 0
+    model_hidden: int = 64
+    model_layers: int = 2
+    model_learning_rate: float = 1e-3
+    model_steps: int = 200
+    model_buffer: int = 4000
+    planner_kind: str = "lqr"
+    planner_horizon: int | None = None
+    planner_iterations: int = 50
+    planner_every: int = 1
 
     def __post_init__(self) -> None:
         validate(self)
@@ -95,8 +113,13 @@ class Scenario:
         return replaced(self, changes, "scenario")
 
     def to_dict(self) -> dict:
-        """The fields as a plain dict (None values dropped, for TOML)."""
-        return {k: v for k, v in dataclasses.asdict(self).items() if v is not None}
+        """The fields as a plain dict (None values dropped, for TOML); the model and planner
+        fields only when one of them differs from the paper's agent, so that a run of the
+        paper's agent records the same ``config.toml`` as before they existed."""
+        out = {k: v for k, v in dataclasses.asdict(self).items() if v is not None}
+        if model_planner.is_default(self):
+            out = {k: v for k, v in out.items() if k not in model_planner.FIELDS}
+        return out
 
 
 _NAME = re.compile(r"[a-z0-9][a-z0-9-]*")
@@ -142,6 +165,7 @@ def validate(s: Scenario) -> None:
     check_number("cost_cap", s.cost_cap, 0.0, open_low=True)
     check_number("pg_sigma", s.pg_sigma, 0.0, open_low=True)
     check_number("pg_step", s.pg_step, 0.0, open_low=True)
+    model_planner.validate(s)
 
 
 FIELDS: tuple[str, ...] = tuple(f.name for f in dataclasses.fields(Scenario))
@@ -189,7 +213,7 @@ def read_config(path) -> tuple[dict, list[str] | None]:
     list of method names). Returns ``(fields, methods or None)``; one-line ``ValueError`` for an
     unreadable file, bad TOML or an unknown key (values are checked when the scenario is built).
     """
-    return read_flat_file(path, FIELDS)
+    return read_flat_file(path, FIELDS, tables=model_planner.TABLES)
 
 
 #: The scenario fields that are readings of the paper's open details (SPEC §5).

@@ -12,7 +12,10 @@ differs)::
     [exploration]  ν: exactly one of gain (K [m, n_obs] or [m, n_obs + 1], a = a_op − K Δx),
                    policy ("module:function", obs -> action), nominal (open-loop actions
                    [T, m]); action_std (Gaussian action noise)
-    [model]        A, B (nominal, default A = I, B = 0), time_varying, lambda [ftrl_lambda]
+    [model]        A, B (nominal, default A = I, B = 0), time_varying, lambda [ftrl_lambda],
+                   kind, features, degree, count, bandwidth, seed, hidden, layers,
+                   learning_rate, steps, buffer [model_*]
+    [planner]      kind, horizon, iterations, every [planner_*]
     [run]          methods (dagger | batch | abbeel), iterations, samples, seeds (a count or a
                    list), test_trajectories, dagger_fraction
 
@@ -46,6 +49,7 @@ from loopid.algorithms.host_loop import (
 )
 from loopid.algorithms.loop import Trace
 from loopid.algorithms.methods import policy_fractions
+from loopid.experiments import model_planner
 from loopid.experiments.config import (
     Table,
     check_choice,
@@ -86,6 +90,8 @@ class GymScenario:
         episode ends by ``terminated``; cost_cap: a test episode's cost cap.
       gain, policy, nominal, action_std: ν (exactly one of the first three) and its noise.
       A, B, time_varying, ftrl_lambda: the nominal model and the FTRL regulariser.
+      model_*, planner_*: the model class and the optimal-control solver
+        (:mod:`loopid.experiments.model_planner`; default a linear model and LQR).
       iterations, samples, seeds, test_trajectories, dagger_fraction: the protocol (``seeds``: a
         count or a tuple of seeds).
     """
@@ -119,6 +125,21 @@ class GymScenario:
     seeds: Any = 5
     test_trajectories: int = 10
     dagger_fraction: float = 0.5
+    model_kind: str = "linear"
+    model_features: str = "polynomial"
+    model_degree: int = 3
+    model_count: int = 100
+    model_bandwidth: float = 1.0
+    model_seed: int = 0
+    model_hidden: int = 64
+    model_layers: int = 2
+    model_learning_rate: float = 1e-3
+    model_steps: int = 200
+    model_buffer: int = 4000
+    planner_kind: str = "lqr"
+    planner_horizon: int | None = None
+    planner_iterations: int = 50
+    planner_every: int = 1
 
     def __post_init__(self) -> None:
         for f in fields(self):  # TOML lists and tables, kept hashable
@@ -132,10 +153,13 @@ class GymScenario:
         return replaced(self, changes, "gym scenario")
 
     def to_dict(self) -> dict:
-        """The fields as plain TOML values (lists, tables), ``None`` left out."""
+        """The fields as plain TOML values (lists, tables), ``None`` left out; the model and
+        planner fields only when one differs from the default linear model and LQR (so such a
+        run records the same ``config.toml`` as before they existed)."""
+        skip = set(model_planner.FIELDS) if model_planner.is_default(self) else set()
         out = {}
         for k, v in ((f.name, getattr(self, f.name)) for f in fields(self)):
-            if v is None or (k in _TABLE_FIELDS and not v):
+            if v is None or (k in _TABLE_FIELDS and not v) or k in skip:
                 continue
             out[k] = thaw(v)
         return out
@@ -181,6 +205,12 @@ def validate(s: GymScenario) -> None:
     else:
         check_int("seeds", seeds)
     check_number("dagger_fraction", s.dagger_fraction, 0.0, 1.0)
+    model_planner.validate(s, s.horizon)
+    if s.time_varying and s.model_kind != "linear":
+        raise ValueError(
+            f"time_varying applies to the linear model; model_kind {s.model_kind!r} learns one "
+            "model for every step"
+        )
 
 
 #: TOML table -> {key: field} (the file format of the module docstring).
@@ -197,7 +227,11 @@ TABLES = {
     "exploration": {
         "gain": "gain", "policy": "policy", "nominal": "nominal", "action_std": "action_std",
     },
-    "model": {"A": "A", "B": "B", "time_varying": "time_varying", "lambda": "ftrl_lambda"},
+    "model": {
+        "A": "A", "B": "B", "time_varying": "time_varying", "lambda": "ftrl_lambda",
+        **{k: f"model_{k}" for k in model_planner.TABLES["model"]},
+    },
+    "planner": {k: f"planner_{k}" for k in model_planner.TABLES["planner"]},
     "run": {
         "methods": None, "iterations": "iterations", "samples": "samples", "seeds": "seeds",
         "test_trajectories": "test_trajectories", "dagger_fraction": "dagger_fraction",

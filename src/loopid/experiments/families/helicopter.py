@@ -41,6 +41,7 @@ from loopid.algorithms.loop import (
 from loopid.algorithms.model_based import linear_agent
 from loopid.algorithms.plant import Plant, make_plant
 from loopid.algorithms.policy_gradient import run_policy_gradient
+from loopid.experiments import model_planner
 from loopid.experiments.config import read_flat_file
 from loopid.experiments.families.base import Family, Progress
 from loopid.experiments.findings import findings_section
@@ -304,7 +305,7 @@ FAMILY = Family(
     scenarios=SCENARIOS,
     default_methods=lambda s: M.METHODS,
     build=lambda name, fields: scenario(name, **fields),
-    read_file=lambda path: read_flat_file(path, FIELDS),
+    read_file=lambda path: read_flat_file(path, FIELDS, tables=model_planner.TABLES),
     run=run,
     figure=figure,
     report=report,
