@@ -2,8 +2,18 @@
 
 - :mod:`loopid.models.linear_offset`: Δx' ≈ (A + A')Δx + (B + B')Δu around a nominal (A, B)
   (hover), and its time-varying form with one offset pair per step (funnel), SPEC §4.2.
+- :mod:`loopid.models.features`: Δx' ≈ AΔx + BΔu + Wᵀφ(Δx, Δu) with a fixed feature map
+  (:func:`polynomial`, :func:`random_fourier`), still linear in W, so FTRL/OGD fit it (issue 19).
+  Its functions (``features``, ``predict``, ``per_sample_loss``, ``dynamics``) are imported from
+  the module: ``from loopid.models.features import predict``; the package's ``features`` is the
+  linear offset model's.
+- :mod:`loopid.models.mlp`: Δx' ≈ AΔx + BΔu + MLP_θ(Δx, Δu), trained online with optax (Adam);
+  non-convex, no regret claim (issue 19).
 """
 
+# The feature-model module is imported first: importing it binds the package attribute
+# ``features`` to the module, and the linear offset import below rebinds it to the function.
+from loopid.models.features import FeatureMap, polynomial, random_fourier
 from loopid.models.linear_offset import (
     LinearOffsetModel,
     features,
@@ -14,13 +24,20 @@ from loopid.models.linear_offset import (
     time_varying_nominal,
     to_matrices,
 )
+from loopid.models.mlp import MLPLearner, MLPState, mlp_learner
 
 __all__ = [
+    "FeatureMap",
     "LinearOffsetModel",
+    "MLPLearner",
+    "MLPState",
     "features",
     "hover_nominal",
+    "mlp_learner",
     "per_sample_loss",
+    "polynomial",
     "predict",
+    "random_fourier",
     "residual_targets",
     "time_varying_nominal",
     "to_matrices",
