@@ -68,6 +68,7 @@ import itertools
 import math
 from collections.abc import Callable
 from dataclasses import dataclass
+from functools import partial
 
 import jax
 import jax.numpy as jnp
@@ -182,7 +183,7 @@ def polynomial(n: int, m: int, degree: int = DEFAULT_DEGREE) -> FeatureMap:
         return jnp.concatenate(out, axis=-1)
 
     size = n + m + sum(int(t.shape[0]) for t in tables)
-    return FeatureMap(f"poly{degree}", n, m, size, _linear_and(psi))
+    return FeatureMap(f"poly{degree}", n, m, size, jax.jit(_linear_and(psi)))
 
 
 def random_fourier(
@@ -224,7 +225,7 @@ def random_fourier(
     def psi(v):
         return scale * jnp.cos(v @ scaled.T + phase)
 
-    return FeatureMap(f"rff{count}", n, m, n + m + count, _linear_and(psi))
+    return FeatureMap(f"rff{count}", n, m, n + m + count, jax.jit(_linear_and(psi)))
 
 
 def features(fmap: FeatureMap, dx, du) -> jax.Array:
@@ -259,6 +260,7 @@ def _check(model: LinearOffsetModel, fmap: FeatureMap, W, dx, du, t):
     return AB, W.astype(jnp.float64), dx, du, t
 
 
+@partial(jax.jit, static_argnums=0)
 def _predict(fmap, A, B, W, dx, du, t):
     return _nominal(A, B, dx, du, t) + fmap.fn(dx, du) @ W
 
