@@ -170,7 +170,9 @@ def mlp_learner(
     optimizer = optax.adam(lr)
     widths = (k, *hidden, n - 1)
 
+    @jax.jit
     def init(seed) -> MLPState:
+        """A fresh state from an integer seed or a typed PRNG key (jitted; vmap over seeds)."""
         key = jnp.asarray(seed) if isinstance(seed, jax.Array) else seed
         if not (isinstance(key, jax.Array) and jnp.issubdtype(key.dtype, jax.dtypes.prng_key)):
             key = jax.random.key(seed)
@@ -278,6 +280,7 @@ def mlp_learner(
         y = residual_targets(model, dx, du, dx_next, t)[:, :-1]
         return _update(state, _inputs(dx, du), y, keep)
 
+    @jax.jit
     def _predict_rows(state, dx, du, t):
         g = _forward(state.params, state.norm, _inputs(dx, du))
         offset = jnp.concatenate([g, jnp.zeros((*g.shape[:-1], 1))], axis=-1)
