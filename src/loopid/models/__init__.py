@@ -4,19 +4,16 @@
   (hover), and its time-varying form with one offset pair per step (funnel), SPEC §4.2.
 - :mod:`loopid.models.features`: Δx' ≈ AΔx + BΔu + Wᵀφ(Δx, Δu) with a fixed feature map
   (:func:`polynomial`, :func:`random_fourier`), still linear in W, so FTRL/OGD fit it (issue 19).
-  Its functions (``features``, ``predict``, ``per_sample_loss``, ``dynamics``) are imported from
-  the module: ``from loopid.models.features import predict``; the package's ``features`` is the
-  linear offset model's.
+  ``loopid.models.features`` is that module; called, it is the linear offset model's
+  z = [Δx; Δu] (``features(dx, du)``, as before the module existed).
 - :mod:`loopid.models.mlp`: Δx' ≈ AΔx + BΔu + MLP_θ(Δx, Δu), trained online with optax (Adam);
   non-convex, no regret claim (issue 19).
 """
 
-# The feature-model module is imported first: importing it binds the package attribute
-# ``features`` to the module, and the linear offset import below rebinds it to the function.
+from loopid.models import features  # the module, callable as linear_offset.features
 from loopid.models.features import FeatureMap, polynomial, random_fourier
 from loopid.models.linear_offset import (
     LinearOffsetModel,
-    features,
     hover_nominal,
     per_sample_loss,
     predict,
