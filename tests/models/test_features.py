@@ -229,6 +229,7 @@ def test_dynamics_jacobian_matches_finite_differences_and_keeps_the_constant(rng
     [
         (lambda: polynomial(N, M, 0), "degree"),
         (lambda: polynomial(N, M, 2.0), "degree"),
+        (lambda: polynomial(21, 4, 6), "degree=6 gives"),
         (lambda: polynomial(0, M, 2), "n"),
         (lambda: polynomial(N, -1, 2), "m"),
         (lambda: random_fourier(N, M, 0), "count"),

@@ -104,6 +104,7 @@ __all__ = [
 DEFAULT_DEGREE = 2
 DEFAULT_COUNT = 400
 DEFAULT_BANDWIDTH = 1.0
+MAX_FEATURES = 100_000  # polynomial maps larger than this are refused (FTRL's ZZ is F x F)
 
 
 @dataclass(frozen=True, eq=False)
@@ -175,6 +176,11 @@ def polynomial(n: int, m: int, degree: int = DEFAULT_DEGREE) -> FeatureMap:
     n, m = _sizes(n, m)
     degree = _positive_int("degree", degree)
     k = n - 1 + m
+    size = n + m + sum(math.comb(k + d - 1, d) for d in range(2, degree + 1))
+    if size > MAX_FEATURES:
+        raise ValueError(
+            f"degree={degree} gives {size} features for {k} inputs, more than {MAX_FEATURES}"
+        )
     tables = [jnp.asarray(t) for t in _monomials(k, degree)]
 
     def psi(v):
@@ -187,7 +193,6 @@ def polynomial(n: int, m: int, degree: int = DEFAULT_DEGREE) -> FeatureMap:
             out.append(p)
         return jnp.concatenate(out, axis=-1)
 
-    size = n + m + sum(int(t.shape[0]) for t in tables)
     return FeatureMap(f"poly{degree}", n, m, size, jax.jit(_linear_and(psi)))
 
 
@@ -213,6 +218,8 @@ def random_fourier(
     """
     n, m = _sizes(n, m)
     count = _positive_int("count", count)
+    if count > MAX_FEATURES:
+        raise ValueError(f"count must be at most {MAX_FEATURES}, got {count}")
     k = n - 1 + m
     bw = np.asarray(bandwidth, dtype=np.float64)
     if bw.ndim > 1 or (bw.ndim == 1 and bw.shape[0] != k):
