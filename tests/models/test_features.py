@@ -12,7 +12,7 @@ from sklearn.preprocessing import PolynomialFeatures
 from loopid.learners import ftrl_least_squares, ogd
 from loopid.models import LinearOffsetModel, hover_nominal, polynomial, random_fourier
 from loopid.models import linear_offset as lo
-from loopid.models.features import (
+from loopid.models.feature_model import (
     DEFAULT_DEGREE,
     dynamics,
     features,
@@ -256,15 +256,3 @@ def test_shape_mismatches_name_the_argument(rng):
         predict(_nominal(rng, N + 1), fmap, np.zeros((fmap.size, N)), dx, du)
     with pytest.raises(ValueError, match="du must have shape"):
         fmap(dx, du[:, :1])
-
-
-def test_the_package_name_features_is_this_module_and_the_linear_features(rng):
-    """``loopid.models.features`` is the feature-model module however it is imported, and calling
-    it is still the linear offset model's z = [Δx; Δu]."""
-    import loopid.models.features as by_path
-    from loopid.models import features as by_name
-
-    assert by_path is by_name and by_name.polynomial is polynomial
-    dx, du = _rows(rng, 6)
-    np.testing.assert_array_equal(np.asarray(by_name(dx, du)), np.asarray(lo.features(dx, du)))
-    assert jax.jit(by_name.__call__)(dx, du).shape == (6, N + M)

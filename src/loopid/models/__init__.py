@@ -2,18 +2,16 @@
 
 - :mod:`loopid.models.linear_offset`: Δx' ≈ (A + A')Δx + (B + B')Δu around a nominal (A, B)
   (hover), and its time-varying form with one offset pair per step (funnel), SPEC §4.2.
-- :mod:`loopid.models.features`: Δx' ≈ AΔx + BΔu + Wᵀφ(Δx, Δu) with a fixed feature map
+- :mod:`loopid.models.feature_model`: Δx' ≈ AΔx + BΔu + Wᵀφ(Δx, Δu) with a fixed feature map
   (:func:`polynomial`, :func:`random_fourier`), still linear in W, so FTRL/OGD fit it (issue 19).
-  ``loopid.models.features`` is that module; called, it is the linear offset model's
-  z = [Δx; Δu] (``features(dx, du)``, as before the module existed).
 - :mod:`loopid.models.mlp`: Δx' ≈ AΔx + BΔu + MLP_θ(Δx, Δu), trained online with optax (Adam);
   non-convex, no regret claim (issue 19).
 """
 
-from loopid.models import features  # the module, callable as linear_offset.features
-from loopid.models.features import FeatureMap, polynomial, random_fourier
+from loopid.models.feature_model import FeatureMap, polynomial, random_fourier
 from loopid.models.linear_offset import (
     LinearOffsetModel,
+    features,
     hover_nominal,
     per_sample_loss,
     predict,

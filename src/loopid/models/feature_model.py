@@ -57,19 +57,12 @@ exactly 1 by setting the output's last entry to 1 (its Jacobian row is then zero
 :func:`predict` does not (so with ``degree=1`` it equals
 :func:`loopid.models.linear_offset.predict`); fitted on consistent data (Δx'_{-1} = 1, nominal
 last row e_n) W's last column is zero anyway.
-
-Import note: the package attribute ``loopid.models.features`` is this module, and calling it
-is the linear offset model's z = [Δx; Δu] (:func:`loopid.models.linear_offset.features`, the
-degree-1 map), so ``from loopid.models import features; features(dx, du)`` keeps its meaning
-while ``features.polynomial``, ``features.predict``, ... reach this module.
 """
 
 from __future__ import annotations
 
 import itertools
 import math
-import sys
-import types
 from collections.abc import Callable
 from dataclasses import dataclass
 from functools import partial
@@ -78,7 +71,6 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from loopid.models import linear_offset
 from loopid.models.linear_offset import (
     LinearOffsetModel,
     _check_model,
@@ -312,15 +304,3 @@ def dynamics(model: LinearOffsetModel, fmap: FeatureMap, W) -> Callable:
         return out.at[-1].set(1.0)
 
     return f
-
-
-class _FeaturesModule(types.ModuleType):
-    """This module, callable as :func:`loopid.models.linear_offset.features` (see the import
-    note above): ``loopid.models.features`` names both."""
-
-    def __call__(self, dx, du) -> jax.Array:
-        """z = [Δx; Δu]: dx [b, n], du [b, m] -> [b, n+m] (the linear offset model's features)."""
-        return linear_offset.features(dx, du)
-
-
-sys.modules[__name__].__class__ = _FeaturesModule
