@@ -14,6 +14,10 @@ never NaN.
 - :func:`tvlqr` -> :class:`TVLQRSolution` (funnel on a learned time-varying model; also the
   fallback when ``dlqr`` does not converge, SPEC §4.4)
 - :func:`ilqr` -> :class:`ILQRSolution` (the funnel expert on the true simulator)
+- :func:`plan` (iLQR on a learned model whose parameters are traced), :func:`as_gains` (its
+  policy as the loop's gains ``K [T, m, n]``), :func:`mpc_rollout` / :class:`MPCController`
+  (receding-horizon iLQR in JAX and for Gymnasium envs), :class:`Penalized`,
+  :func:`quadratic_cost`: the planner of nonlinear models (issue 19)
 - :func:`rollout`, :func:`linear_rollout`, :func:`tracking_rollout` -> trajectories
 - :func:`value_iteration`, :func:`policy_iteration`, :func:`evaluate`, :func:`occupancy`: finite
   MDPs (batched), exact policy evaluation and discounted occupancy D_{μ,π}
@@ -21,6 +25,16 @@ never NaN.
 
 from loopid.control.ilqr import ILQRSolution, Quadratization, ilqr, quadratize, trajectory_cost
 from loopid.control.lqr import LQRSolution, dlqr, dlqr_affine
+from loopid.control.planner import (
+    MPCController,
+    MPCRollout,
+    Penalized,
+    QuadraticCost,
+    as_gains,
+    mpc_rollout,
+    plan,
+    quadratic_cost,
+)
 from loopid.control.rollout import Rollout, linear_rollout, rollout, tracking_rollout
 from loopid.control.tvlqr import TVLQRSolution, tvlqr
 from loopid.control.value_iteration import (
@@ -37,20 +51,28 @@ from loopid.control.value_iteration import (
 __all__ = [
     "ILQRSolution",
     "LQRSolution",
+    "MPCController",
+    "MPCRollout",
     "PIResult",
+    "Penalized",
+    "QuadraticCost",
     "Quadratization",
     "Rollout",
     "TVLQRSolution",
     "VIResult",
+    "as_gains",
     "dlqr",
     "dlqr_affine",
     "evaluate",
     "greedy",
     "ilqr",
     "linear_rollout",
+    "mpc_rollout",
     "occupancy",
+    "plan",
     "policy_iteration",
     "q_values",
+    "quadratic_cost",
     "quadratize",
     "rollout",
     "tracking_rollout",

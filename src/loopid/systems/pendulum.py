@@ -52,6 +52,7 @@ __all__ = [
     "PendulumParams",
     "angle_normalize",
     "cost",
+    "cost_obs",
     "from_error",
     "observe",
     "step",
@@ -101,6 +102,16 @@ def cost(x: Array, u: Array, t=None, params: PendulumParams = DEFAULT) -> Array:
     with ``ū`` the clipped torque; ``x [2]``, ``u [1]`` -> scalar."""
     ub = jnp.clip(u[0], -params.max_torque, params.max_torque)
     return angle_normalize(x[0]) ** 2 + 0.1 * x[1] ** 2 + 0.001 * (ub**2)
+
+
+def cost_obs(dx: Array, du: Array, t=None, params: PendulumParams = DEFAULT) -> Array:
+    """Gym's cost in error coordinates: ``θ² + 0.1 θ̇² + 0.001 ū²`` with θ = atan2(Δx₁, Δx₀ + 1)
+    (= angle_normalize(θ) up to rounding), ``Δx [4]``, ``Δu [1]`` -> scalar.
+
+    The planning cost of the swing-up (with a torque penalty, see the module docstring of
+    :mod:`loopid.control.planner`): its gradient does not vanish at the bottom, where the
+    quadratic ``ΔxᵀQΔx`` looks like a minimum to iLQR's Gauss-Newton model."""
+    return cost(from_error(dx), du, t, params)
 
 
 def observe(x: Array) -> Array:
