@@ -52,6 +52,10 @@ def test_step_obs_commutes_with_to_error(rng):
     lhs = jax.vmap(pendulum.step_obs)(dX, U)
     rhs = pendulum.to_error(jax.vmap(pendulum.step)(X, U))
     np.testing.assert_allclose(lhs, rhs, atol=1e-12)
+    # Gym's cost read from the error coordinates
+    np.testing.assert_allclose(
+        jax.vmap(pendulum.cost_obs)(dX, U), jax.vmap(pendulum.cost)(X, U), rtol=0, atol=1e-12
+    )
     # from_error inverts to_error up to whole turns
     back = pendulum.from_error(dX)
     np.testing.assert_allclose(np.cos(back[:, 0] - X[:, 0]), 1.0, atol=1e-12)

@@ -28,7 +28,7 @@ upright (Gym's θ² term has a kink at θ = ±π, which gradient-based planners 
 Gradients and the clips: ``jnp.clip`` has zero derivative outside its range, so for |u| > u_max
 the torque has no effect and no gradient (B = 0), and above |θ̇| = θ̇_max the speed is frozen.
 The dynamics keep both clips (they are what the env does); planners keep the torque inside the
-limit with a smooth penalty on |u| > u_max (:func:`loopid.control.planner.torque_penalty`), and
+limit with a smooth penalty on |u| > u_max (:class:`loopid.control.Penalized`), and
 a swing-up never needs |θ̇| near 8 (θ̇² ≤ 2·3g/(2l)·2 = 60 from rest at the bottom to upright).
 
 :class:`PendulumHangingEnv` (``gymnasium.make("loopid/PendulumHanging-v0")``) is Pendulum-v1
