@@ -8,7 +8,12 @@ guarantee holds for any model class with a no-regret learner and any optimal-con
                degree, count, bandwidth, seed           (the feature map)
                hidden, layers, learning_rate, steps, buffer   (kind = "mlp")
     [planner]  kind = "lqr" | "ilqr" | "mpc"
-               horizon (mpc: the re-planning window, steps), iterations (iLQR), every (mpc)
+               horizon: mpc: the re-planning window (steps); ilqr: when set, the task-horizon
+                 plan starts from the actions of an MPC episode of that window on the model
+               iterations: iLQR iterations (per plan, per re-plan)
+               every: mpc: re-plan every that many steps
+               alternatives: constant actions Δu [k, m] also tried at every re-plan (the
+                 cheapest plan is kept): the torque-limited swing-up needs [[2], [-2]]
 
 In a config dataclass these are flat fields with a prefix (``model_kind``, ``model_degree``,
 ``planner_kind``, ...; :data:`FIELDS`), so ``--set model_kind=features`` works like any other
@@ -20,31 +25,61 @@ scenario that sets nothing here runs exactly as before. ``lqr`` needs the linear
 a Riccati equation on (Â, B̂)); ``ilqr`` and ``mpc`` plan on any model by autodiff.
 """
 
+import dataclasses
+from dataclasses import dataclass
+from typing import Any
+
 from loopid.experiments.config import check_choice, check_int, check_number
+from loopid.models.feature_model import DEFAULT_BANDWIDTH, DEFAULT_COUNT, DEFAULT_DEGREE
 
 MODEL_KINDS = ("linear", "features", "mlp")
 FEATURE_MAPS = ("polynomial", "fourier")
 PLANNER_KINDS = ("lqr", "ilqr", "mpc")
 
-#: Every field with its default, in the order config.toml writes them. ``planner_horizon`` None:
-#: the task's horizon.
-DEFAULTS: dict = {
-    "model_kind": "linear",
-    "model_features": "polynomial",
-    "model_degree": 3,
-    "model_count": 100,
-    "model_bandwidth": 1.0,
-    "model_seed": 0,
-    "model_hidden": 64,
-    "model_layers": 2,
-    "model_learning_rate": 1e-3,
-    "model_steps": 200,
-    "model_buffer": 4000,
-    "planner_kind": "lqr",
-    "planner_horizon": None,
-    "planner_iterations": 50,
-    "planner_every": 1,
-}
+
+@dataclass(frozen=True, kw_only=True)
+class ModelPlanner:
+    """The model and planner fields (module docstring), shared by the config dataclasses that
+    inherit them (keyword-only, so they follow the inheriting class's own fields).
+
+    Attributes:
+      model_kind: ``linear``, ``features`` or ``mlp``.
+      model_features: the feature map, ``polynomial`` or ``fourier``.
+      model_degree: the polynomial's highest degree (:mod:`loopid.models.feature_model`).
+      model_count, model_bandwidth, model_seed: random Fourier features: how many, their
+        bandwidth σ (in the error coordinates' units) and the seed of their draw (the MLP's
+        initial weights too).
+      model_hidden, model_layers: the MLP's hidden width and number of hidden layers.
+      model_learning_rate, model_steps, model_buffer: its Adam step size, Adam steps per
+        update, and replay buffer rows (:mod:`loopid.models.mlp`).
+      planner_kind: ``lqr``, ``ilqr`` or ``mpc``.
+      planner_horizon: mpc: the re-planning window; ilqr: the window of the MPC episode on the
+        model that gives the task-horizon plan its initial actions (None: no such episode).
+      planner_iterations: iLQR iterations per plan (per re-plan under mpc).
+      planner_every: mpc: steps between re-plans.
+      planner_alternatives: constant actions ``Δu [k, m]`` also tried at each re-plan.
+    """
+
+    model_kind: str = "linear"
+    model_features: str = "polynomial"
+    model_degree: int = DEFAULT_DEGREE
+    model_count: int = DEFAULT_COUNT
+    model_bandwidth: float = DEFAULT_BANDWIDTH
+    model_seed: int = 0
+    model_hidden: int = 64
+    model_layers: int = 2
+    model_learning_rate: float = 1e-3
+    model_steps: int = 200
+    model_buffer: int = 4000
+    planner_kind: str = "lqr"
+    planner_horizon: int | None = None
+    planner_iterations: int = 50
+    planner_every: int = 1
+    planner_alternatives: Any = None
+
+
+#: Every field with its default, in the order config.toml writes them.
+DEFAULTS: dict = {f.name: f.default for f in dataclasses.fields(ModelPlanner)}
 FIELDS = tuple(DEFAULTS)
 #: TOML table -> its keys (each key ``k`` of table ``t`` is the field ``t_k``).
 TABLES = {
@@ -76,6 +111,18 @@ def validate(s, horizon: int | None = None) -> None:
         raise ValueError(
             f"planner_every {s.planner_every} is longer than planner_horizon {s.planner_horizon}"
         )
+    alt = s.planner_alternatives
+    if alt is not None:
+        rows = alt if isinstance(alt, tuple | list) else ()
+        ok = len(rows) > 0 and all(
+            isinstance(r, tuple | list) and len(r) > 0 and len(r) == len(rows[0])
+            and all(isinstance(v, int | float) and not isinstance(v, bool) for v in r)
+            for r in rows
+        )  # fmt: skip
+        if not ok:
+            raise ValueError(
+                f"planner_alternatives must be a list of action vectors [[...], ...], got {alt!r}"
+            )
     if s.planner_kind == "lqr" and s.model_kind != "linear":
         raise ValueError(
             f"planner_kind 'lqr' solves a linear model; model_kind {s.model_kind!r} needs "
@@ -86,3 +133,30 @@ def validate(s, horizon: int | None = None) -> None:
 def is_default(s) -> bool:
     """True when ``s`` runs the paper's agent (linear model, LQR) with nothing else set."""
     return all(getattr(s, k) == v for k, v in DEFAULTS.items())
+
+
+def model_class(s, nominal):
+    """The :class:`~loopid.algorithms.planning_agent.ModelClass` of the config ``s``'s
+    ``model_*`` fields around the nominal model: ``linear`` is the feature model of degree 1
+    (the linear offset model, planned on by iLQR), ``features`` a polynomial or random Fourier
+    map learned by FTRL (λ = ``s.ftrl_lambda``), ``mlp`` the online MLP (``model_layers``
+    hidden layers of ``model_hidden`` units)."""
+    from loopid.algorithms.planning_agent import feature_model, mlp_model
+    from loopid.learners import ftrl_least_squares
+    from loopid.models.feature_model import polynomial, random_fourier
+    from loopid.models.mlp import mlp_learner
+
+    n, m = nominal.n, nominal.m
+    if s.model_kind == "mlp":
+        learner = mlp_learner(
+            nominal, hidden=(s.model_hidden,) * s.model_layers, lr=s.model_learning_rate,
+            steps=s.model_steps, capacity=s.model_buffer,
+        )  # fmt: skip
+        return mlp_model(nominal, learner, seed=s.model_seed)
+    if s.model_kind == "linear":
+        fmap = polynomial(n, m, 1)
+    elif s.model_features == "polynomial":
+        fmap = polynomial(n, m, s.model_degree)
+    else:
+        fmap = random_fourier(n, m, s.model_count, s.model_bandwidth, s.model_seed)
+    return feature_model(nominal, fmap, ftrl_least_squares(s.ftrl_lambda))

@@ -24,7 +24,7 @@ from loopid.systems.tasks import TASK_NAMES
 
 
 @dataclass(frozen=True)
-class Scenario:
+class Scenario(model_planner.ModelPlanner):
     """One panel of the paper's Figure 2.
 
     Attributes:
@@ -89,21 +89,6 @@ class Scenario:
     pg_horizon: int = 600
     pg_sigma: float = 0.01
     pg_step: float = 0.1
-    model_kind: str = "linear"
-    model_features: str = "polynomial"
-    model_degree: int = 3
-    model_count: int = 100
-    model_bandwidth: float = 1.0
-    model_seed: int = 0
-    model_hidden: int = 64
-    model_layers: int = 2
-    model_learning_rate: float = 1e-3
-    model_steps: int = 200
-    model_buffer: int = 4000
-    planner_kind: str = "lqr"
-    planner_horizon: int | None = None
-    planner_iterations: int = 50
-    planner_every: int = 1
 
     def __post_init__(self) -> None:
         validate(self)
@@ -116,10 +101,11 @@ class Scenario:
         """The fields as a plain dict (None values dropped, for TOML); the model and planner
         fields only when one of them differs from the paper's agent, so that a run of the
         paper's agent records the same ``config.toml`` as before they existed."""
-        out = {k: v for k, v in dataclasses.asdict(self).items() if v is not None}
-        if model_planner.is_default(self):
-            out = {k: v for k, v in out.items() if k not in model_planner.FIELDS}
-        return out
+        d = dataclasses.asdict(self)
+        keep = [k for k in d if k not in model_planner.FIELDS]
+        if not model_planner.is_default(self):
+            keep += model_planner.FIELDS
+        return {k: d[k] for k in keep if d[k] is not None}
 
 
 _NAME = re.compile(r"[a-z0-9][a-z0-9-]*")
@@ -166,6 +152,11 @@ def validate(s: Scenario) -> None:
     check_number("pg_sigma", s.pg_sigma, 0.0, open_low=True)
     check_number("pg_step", s.pg_step, 0.0, open_low=True)
     model_planner.validate(s)
+    if s.planner_kind == "mpc":
+        raise ValueError(
+            "planner_kind 'mpc' re-plans while an episode runs, which the helicopter's compiled "
+            "loop does not do yet (it flies gains); use 'ilqr', or mpc on a gym scenario"
+        )
 
 
 FIELDS: tuple[str, ...] = tuple(f.name for f in dataclasses.fields(Scenario))

@@ -15,7 +15,10 @@ differs)::
     [model]        A, B (nominal, default A = I, B = 0), time_varying, lambda [ftrl_lambda],
                    kind, features, degree, count, bandwidth, seed, hidden, layers,
                    learning_rate, steps, buffer [model_*]
-    [planner]      kind, horizon, iterations, every [planner_*]
+    [planner]      kind, horizon, iterations, every, alternatives, start, cost [planner_*]
+                   (start: the observation an iLQR plan starts from, default the target;
+                   cost: "module:function", the planner's cost(Δx, Δu, t) in JAX, default the
+                   [cost] table's quadratic; either way the action box is kept by a penalty)
     [run]          methods (dagger | batch | abbeel), iterations, samples, seeds (a count or a
                    list), test_trajectories, dagger_fraction
 
@@ -35,6 +38,7 @@ from functools import lru_cache
 from pathlib import Path
 from typing import Any, NamedTuple
 
+import jax
 import numpy as np
 import pyarrow as pa
 
@@ -74,7 +78,7 @@ _NO_TABLE = Table()
 
 
 @dataclass(frozen=True)
-class GymScenario:
+class GymScenario(model_planner.ModelPlanner):
     """One Gymnasium experiment (module docstring for the file format; frozen and hashable:
     lists are kept as tuples and tables as tuples of pairs, :meth:`to_dict` gives them back).
 
@@ -125,21 +129,8 @@ class GymScenario:
     seeds: Any = 5
     test_trajectories: int = 10
     dagger_fraction: float = 0.5
-    model_kind: str = "linear"
-    model_features: str = "polynomial"
-    model_degree: int = 3
-    model_count: int = 100
-    model_bandwidth: float = 1.0
-    model_seed: int = 0
-    model_hidden: int = 64
-    model_layers: int = 2
-    model_learning_rate: float = 1e-3
-    model_steps: int = 200
-    model_buffer: int = 4000
-    planner_kind: str = "lqr"
-    planner_horizon: int | None = None
-    planner_iterations: int = 50
-    planner_every: int = 1
+    planner_start: Any = None
+    planner_cost: str | None = None
 
     def __post_init__(self) -> None:
         for f in fields(self):  # TOML lists and tables, kept hashable
@@ -158,7 +149,8 @@ class GymScenario:
         run records the same ``config.toml`` as before they existed)."""
         skip = set(model_planner.FIELDS) if model_planner.is_default(self) else set()
         out = {}
-        for k, v in ((f.name, getattr(self, f.name)) for f in fields(self)):
+        names = [f.name for f in fields(self) if f.name not in model_planner.FIELDS]
+        for k, v in ((k, getattr(self, k)) for k in (*names, *model_planner.FIELDS)):
             if v is None or (k in _TABLE_FIELDS and not v) or k in skip:
                 continue
             out[k] = thaw(v)
@@ -231,7 +223,7 @@ TABLES = {
         "A": "A", "B": "B", "time_varying": "time_varying", "lambda": "ftrl_lambda",
         **{k: f"model_{k}" for k in model_planner.TABLES["model"]},
     },
-    "planner": {k: f"planner_{k}" for k in model_planner.TABLES["planner"]},
+    "planner": {k: f"planner_{k}" for k in (*model_planner.TABLES["planner"], "start", "cost")},
     "run": {
         "methods": None, "iterations": "iterations", "samples": "samples", "seeds": "seeds",
         "test_trajectories": "test_trajectories", "dagger_fraction": "dagger_fraction",
@@ -320,7 +312,8 @@ def make_system(s: GymScenario) -> GymSystem:
 
 class Shape(NamedTuple):
     """What the compiled learner depends on besides the scenario: the system's sizes and
-    coordinates (hashable)."""
+    coordinates (hashable); ``u_limit``: the largest |Δu| every action entry may take inside the
+    action box (a planner keeps its plan inside it)."""
 
     n: int
     n_obs: int
@@ -328,12 +321,17 @@ class Shape(NamedTuple):
     horizon: int
     target: tuple
     a_op: tuple
+    observe: tuple | None = None
+    u_limit: float | None = None
 
 
 def _shape(system: GymSystem) -> Shape:
+    room = np.minimum(system.high - system.a_op, system.a_op - system.low)
+    u_limit = float(room.min()) if np.all(np.isfinite(room)) and room.min() > 0 else None
+    observe = None if system.observe is None else tuple(int(i) for i in system.observe)
     return Shape(system.n, system.n_obs, system.m, system.horizon,
                  tuple(np.asarray(system.target).tolist()),
-                 tuple(np.asarray(system.a_op).tolist()))  # fmt: skip
+                 tuple(np.asarray(system.a_op).tolist()), observe, u_limit)  # fmt: skip
 
 
 def _cost(s: GymScenario, shape: Shape):
@@ -349,14 +347,88 @@ def _cost(s: GymScenario, shape: Shape):
                     np.asarray(shape.a_op))  # fmt: skip
 
 
+class Learner(NamedTuple):
+    """A scenario's agent, its compiled host cell and what flies its policy's episodes
+    (``controller(learner_states, K) -> policy``; None: the gains)."""
+
+    agent: Any
+    cell: Any
+    controller: Any = None
+
+
 @lru_cache(maxsize=4)
-def _learner(s: GymScenario, shape: Shape):
+def _learner(s: GymScenario, shape: Shape) -> Learner:
     """The agent and its compiled host cell (kept: every method of a run shares them)."""
     cost = _cost(s, shape)
     model = _checked("model", nominal_model, shape, thaw(s.A), thaw(s.B),
                      time_varying=s.time_varying)  # fmt: skip
-    agent = gym_agent(shape, cost, model, lam=s.ftrl_lambda)
-    return agent, make_host_cell(agent, samples=s.samples)
+    if s.model_kind == "linear" and s.planner_kind == "lqr":
+        agent = gym_agent(shape, cost, model, lam=s.ftrl_lambda)
+        return Learner(agent, make_host_cell(agent, samples=s.samples))
+    return _planning_learner(s, shape, cost, model)
+
+
+def _start(s: GymScenario, shape: Shape) -> np.ndarray:
+    """Δx of ``planner_start`` (default the target): where an iLQR plan starts."""
+    target = np.asarray(shape.target)
+    if s.planner_start is None:
+        return np.concatenate([np.zeros(shape.n_obs), [1.0]])
+    o = np.asarray(thaw(s.planner_start), np.float64)
+    if o.shape != (shape.n_obs,) or not np.all(np.isfinite(o)):
+        raise ValueError(
+            f"[planner] start must be {shape.n_obs} finite numbers (the observed entries), "
+            f"got {thaw(s.planner_start)!r}"
+        )
+    return np.concatenate([o - target, [1.0]])
+
+
+def _planning_learner(s: GymScenario, shape: Shape, cost, nominal) -> Learner:
+    """A model class of :mod:`loopid.algorithms.planning_agent` planned by iLQR (or MPC) on the
+    cost's Q, R, with the action box kept by :func:`loopid.control.planner.action_penalty`."""
+    from loopid.algorithms.planning_agent import ilqr_plan, planning_agent
+    from loopid.control import MPCController, Penalized, quadratic_cost
+
+    Q, R = cost.augmented()
+    if s.planner_cost is None:
+        plan_cost = quadratic_cost(Q, R, u_limit=shape.u_limit)
+    elif shape.u_limit is None:
+        plan_cost = _import(s.planner_cost, "planner.cost")
+    else:
+        plan_cost = Penalized(_import(s.planner_cost, "planner.cost"), shape.u_limit)
+    alternatives = None
+    if s.planner_alternatives is not None:
+        alternatives = np.asarray(thaw(s.planner_alternatives), np.float64)
+        if alternatives.shape[1] != shape.m:
+            raise ValueError(
+                f"[planner] alternatives must be action vectors of {shape.m} entries, "
+                f"got {thaw(s.planner_alternatives)!r}"
+            )
+    mc = _checked("model", model_planner.model_class, s, nominal)
+    if s.planner_horizon is not None and s.planner_horizon > shape.horizon:
+        raise ValueError(
+            f"planner_horizon {s.planner_horizon} is longer than the task's horizon {shape.horizon}"
+        )
+    U0 = np.full((shape.horizon, shape.m), 0.1 * (shape.u_limit or 1.0))
+    seed_horizon = s.planner_horizon if s.planner_kind == "ilqr" else None
+    plan = ilqr_plan(
+        mc, plan_cost, _start(s, shape), U0, iterations=s.planner_iterations,
+        seed_horizon=seed_horizon, seed_alternatives=None if seed_horizon is None else alternatives,
+    )  # fmt: skip
+    agent = planning_agent(mc, plan)
+    cell = make_host_cell(agent, samples=s.samples)
+    if s.planner_kind != "mpc":
+        return Learner(agent, cell)
+
+    def controller(states, K):
+        params = jax.vmap(mc.params)(states)
+        return MPCController(
+            mc.dynamics, plan_cost, params, U0[0], horizon=s.planner_horizon or shape.horizon,
+            target=shape.target, observe=shape.observe, a_op=shape.a_op,
+            every=s.planner_every, iterations=s.planner_iterations, alternatives=alternatives,
+            stacked=True,
+        )  # fmt: skip
+
+    return Learner(agent, cell, controller)
 
 
 def _exploration(s: GymScenario, system: GymSystem) -> Exploration:
@@ -383,8 +455,7 @@ def _test_cost(s: GymScenario, shape: Shape):
 def _parts(s: GymScenario, system: GymSystem):
     try:
         shape = _shape(system)
-        agent, cell = _learner(s, shape)
-        return agent, cell, _exploration(s, system), _test_cost(s, shape)
+        return _learner(s, shape), _exploration(s, system), _test_cost(s, shape)
     except (ValueError, TypeError) as err:
         raise ValueError(str(err).splitlines()[0]) from None
 
@@ -406,14 +477,15 @@ def run(method: str, s: GymScenario, seeds=None, progress: Progress | None = Non
     seeds = seed_list(s) if seeds is None else np.asarray(seeds)
     system = make_system(s)
     try:
-        agent, cell, nu, test_cost = _parts(s, system)
+        learner, nu, test_cost = _parts(s, system)
         fractions = policy_fractions(
             _FRACTIONS[method], s.iterations, dagger_fraction=s.dagger_fraction
         )
         return run_learning_host(
-            system, agent, nu, fractions, [int(x) for x in seeds], samples=s.samples,
+            system, learner.agent, nu, fractions, [int(x) for x in seeds], samples=s.samples,
             n_test=s.test_trajectories, cost=test_cost, termination_cost=s.termination,
-            cost_cap=s.cost_cap, progress=progress, cell=cell,
+            cost_cap=s.cost_cap, progress=progress, cell=learner.cell,
+            controller=learner.controller,
         )  # fmt: skip
     finally:
         system.close()
@@ -494,7 +566,7 @@ def evaluate(s: GymScenario, K, seeds, episodes: int, env=None) -> np.ndarray:
         s = s.replace(env_id=env)
     system = make_system(s)
     try:
-        _, _, _, test_cost = _parts(s, system)
+        _, _, test_cost = _parts(s, system)
         costs, _ = test_episodes(system, np.asarray(K), [int(x) for x in seeds], episodes,
                                  test_cost, s.termination, s.cost_cap, stream=EVALUATE)  # fmt: skip
     finally:

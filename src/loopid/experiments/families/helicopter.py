@@ -22,6 +22,7 @@ from pathlib import Path
 from typing import NamedTuple
 
 import jax
+import jax.numpy as jnp
 import numpy as np
 
 from loopid.algorithms import methods as M
@@ -108,12 +109,41 @@ def setup(s: Scenario) -> Setup:
 def _agent(key: Scenario) -> Agent:
     st = _setup(key)
     task = st.plant.task
-    return linear_agent(st.nominal, ftrl_least_squares(key.ftrl_lambda), task.Q, task.R,
-                        st.plant.horizon)  # fmt: skip
+    if key.model_kind == "linear" and key.planner_kind == "lqr":
+        return linear_agent(st.nominal, ftrl_least_squares(key.ftrl_lambda), task.Q, task.R,
+                            st.plant.horizon)  # fmt: skip
+    return _planning_agent(key, st)
+
+
+def _planning_agent(key: Scenario, st: Setup) -> Agent:
+    """The ``model_*`` model class (:func:`loopid.experiments.model_planner.model_class`: one
+    global model for every step; the funnel's time-varying nominal is kept) planned by iLQR on
+    the task's quadratic cost from the task's start, over the task horizon."""
+    from loopid.algorithms.planning_agent import ilqr_plan, planning_agent
+    from loopid.control import quadratic_cost
+
+    task, horizon = st.plant.task, st.plant.horizon
+    if key.planner_horizon is not None and key.planner_horizon > horizon:
+        raise ValueError(
+            f"planner_horizon {key.planner_horizon} is longer than the task's horizon {horizon}"
+        )
+    model = model_planner.model_class(key, st.nominal)
+    target = jnp.asarray(task.target)
+    x0 = helicopter.to_error(jnp.asarray(task.x0), target[0])
+    U0 = np.zeros((horizon, helicopter.N_ACTION))
+    alternatives = key.planner_alternatives
+    plan = ilqr_plan(
+        model, quadratic_cost(task.Q, task.R), x0, U0, iterations=key.planner_iterations,
+        seed_horizon=key.planner_horizon,
+        seed_alternatives=None if key.planner_horizon is None or alternatives is None
+        else np.asarray(alternatives, np.float64),
+    )  # fmt: skip
+    return planning_agent(model, plan)
 
 
 def agent(s: Scenario) -> Agent:
-    """The model-based agent of scenario ``s`` (linear offset model, FTRL, LQR)."""
+    """The model-based agent of scenario ``s`` (default the paper's: linear offset model, FTRL,
+    LQR; else its ``model_*`` model class planned by iLQR)."""
     return _agent(program_key(s))
 
 
