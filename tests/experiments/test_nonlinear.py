@@ -1,0 +1,129 @@
+"""Nonlinear model classes and planners in the loop (issue 19): the pendulum swing-up, the MLP,
+and one-line refusals of bad [model]/[planner] settings."""
+
+import re
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from conftest import cli
+from loopid import control
+from loopid.algorithms.host_loop import test_episodes as flown_episodes
+from loopid.experiments.families import gym
+from loopid.experiments.scenarios import scenario
+from loopid.systems import pendulum
+from loopid.systems.from_gymnasium import Slot
+
+SWINGUP = Path(__file__).resolve().parents[2] / "examples" / "pendulum_swingup.toml"
+
+
+def swingup(**changes) -> gym.GymScenario:
+    fields, _ = gym.read_file(SWINGUP)
+    return gym.build("gym", {**fields, **changes})
+
+
+@pytest.fixture(scope="module")
+def reference() -> float:
+    """The true-model iLQR's Gym cost of the swing-up, planned as the example plans (Pendulum's
+    own cost with the torque penalty, a 200-step plan seeded by an MPC episode of 60-step plans
+    trying ±2) and flown on the real env as gains: 295.4 (measured)."""
+    dyn = lambda params, dx, du, t: pendulum.step_obs(dx, du, t)  # noqa: E731
+    x0 = pendulum.to_error(np.array([np.pi, 0.0]))
+    sol = control.plan(
+        dyn, control.Penalized(pendulum.cost_obs, 2.0), x0, np.full((200, 1), 0.2),
+        iterations=100, seed_horizon=60, seed_alternatives=[[2.0], [-2.0]],
+    )  # fmt: skip
+    return float(fly(swingup(), np.asarray(control.as_gains(sol))[None])[0][0])
+
+
+def fly(s: gym.GymScenario, K) -> tuple[np.ndarray, np.ndarray]:
+    """Gym costs [S] and angles θ [S, 200] of the gains ``K [S, 200, 1, 4]`` flown once each on
+    the real hanging pendulum (its reward as the cost)."""
+    system = gym.make_system(s)
+    try:
+        costs, _ = flown_episodes(system, K, list(range(len(K))), 1, "reward")
+        slots = [Slot(0, i, 0, 0.0, False) for i in range(len(K))]
+        obs = system.rollouts([system.linear_policy(K)], slots).x
+    finally:
+        system.close()
+    return costs[:, 0], np.arctan2(obs[..., 1], obs[..., 0])
+
+
+@pytest.mark.slow
+def test_dagger_swings_the_pendulum_up_with_features_and_the_linear_model_cannot(reference):
+    """examples/pendulum_swingup.toml at 3 seeds, 8 iterations: DAgger's last policy with the
+    degree-3 feature model and iLQR swings the pendulum up from hanging and holds it upright
+    (|θ| < 0.1) for the final quarter of the episode on all 3 seeds (measured: Gym costs 296.8,
+    304.7, 298.7, i.e. within 1.03x of the true-model iLQR's 295.4; the test asks for 2 of 3
+    within 1.5x); the linear model with LQR, the same data and ν, on none (measured: every
+    seed's final policy stays near the bottom, costs above 1,000). Batch (ν's data only) is in
+    the README's figure: its model fits ν's data but not its own policy's, and it fails."""
+    assert 280 < reference < 320
+    s = swingup(seeds=3, test_trajectories=1)
+    trace = gym.run("dagger", s)
+    costs, theta = fly(s, trace.final["K"])
+    upright = np.all(np.abs(theta[:, 150:]) < 0.1, axis=1)
+    assert np.sum(upright & (costs <= 1.5 * reference)) >= 2, (costs, reference)
+    np.testing.assert_allclose(trace.rows.test_cost[:, -1], costs, rtol=1e-6)
+
+    linear = swingup(seeds=3, test_trajectories=1, model_kind="linear", planner_kind="lqr",
+                     iterations=4)  # fmt: skip
+    costs, theta = fly(linear, gym.run("dagger", linear).final["K"])
+    assert not np.any(np.all(np.abs(theta[:, 150:]) < 0.1, axis=1)), costs
+    assert np.all(costs > 1.5 * reference), costs
+
+
+@pytest.mark.slow
+def test_the_mlp_learns_online_and_its_plan_beats_the_first_policy():
+    """The MLP model (two hidden layers of 32, 100 Adam steps per update) on the swing-up, DAgger,
+    2 seeds: the online loss falls over iterations (measured: ... ) and the last policy's test
+    cost is below the first policy's on every seed. Non-convex: no regret claim, only the
+    online loss is reported."""
+    s = swingup(seeds=2, iterations=4, test_trajectories=1, model_kind="mlp", model_hidden=32,
+                model_steps=100, planner_iterations=30)  # fmt: skip
+    rows = gym.run("dagger", s).rows
+    assert np.all(rows.loss_nu[:, -1] < rows.loss_nu[:, 1]), rows.loss_nu
+    assert np.all(rows.test_cost[:, -1] < rows.test_cost[:, 0]), rows.test_cost
+
+
+@pytest.mark.parametrize(
+    ("changes", "named"),
+    [
+        ({"model_kind": "gaussian-process"}, "model_kind"),
+        ({"model_kind": "features", "model_features": "wavelet"}, "model_features"),
+        ({"model_degree": 0}, "model_degree"),
+        ({"model_count": -5}, "model_count"),
+        ({"model_bandwidth": 0.0}, "model_bandwidth"),
+        ({"model_hidden": 0}, "model_hidden"),
+        ({"planner_kind": "rrt"}, "planner_kind"),
+        ({"planner_kind": "ilqr", "planner_iterations": 0}, "planner_iterations"),
+        ({"planner_kind": "ilqr", "planner_horizon": 601}, "planner_horizon"),
+        ({"planner_kind": "ilqr", "planner_horizon": 5, "planner_every": 6}, "planner_every"),
+        ({"model_kind": "features"}, "planner_kind 'lqr'"),
+        ({"planner_kind": "mpc"}, "mpc"),
+        ({"planner_alternatives": [2.0]}, "planner_alternatives"),
+    ],
+)
+def test_bad_model_and_planner_settings_are_named(changes, named):
+    """On the helicopter (its horizon is checked when the agent is built, 400 for the hover)."""
+    from loopid.experiments.families.helicopter import agent
+
+    with pytest.raises(ValueError, match=re.escape(named)) as err:
+        agent(scenario("hover", **changes))
+    assert "\n" not in str(err.value)
+
+
+def test_bad_settings_on_the_command_line_are_one_line_exit_2(cache, tmp_path):
+    """A user's bad [model]/[planner] values through `loopid run`: one line, exit 2, no run
+    directory (a planner horizon longer than the gym task's 200 steps; an unknown kind)."""
+    for args in (
+        ["gym", "--config", SWINGUP, "--set", "planner_horizon=500"],
+        ["hover", "--set", "model_kind=gp"],
+    ):
+        out = tmp_path / "run"
+        done = cli("run", *args, "--out", out, cache=cache)
+        assert done.returncode == 2, done.stderr
+        lines = done.stderr.strip().splitlines()
+        assert len(lines) == 1 and ("planner_horizon" in lines[0] or "model_kind" in lines[0])
+        assert not out.exists()
