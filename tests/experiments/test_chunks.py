@@ -137,18 +137,12 @@ def test_memory_estimate_within_a_factor_of_two_of_the_measured_peak(name, metho
 
 
 @pytest.mark.slow
-@pytest.mark.xfail(
-    strict=True,
-    reason="open (issue 18): with 100 test trajectories, 9 of 120 test_cost / test_cost_median "
-    "values differ by 1 ulp between chunks of 14 and one chunk of 40 (models, policies and losses "
-    "are identical): the test rollouts' cost reduction still depends on the batch width",
-)
 def test_cli_memory_budget_gives_the_same_table(tmp_path, cache):
     """The issue's check: ``loopid run hover --seeds 40`` with a 100 MB budget (3 chunks of 14:
     a seed needs ~5.8 MB, most of it the test noise while it is drawn) gives the table of the
-    same command with 16 GB (one chunk). It does not yet (the xfail's reason): measured
-    2026-11-25, the chunked run is complete and resumable, but 9 of its 120 test costs differ
-    from the one-chunk run's in the last bit."""
+    same command with 16 GB (one chunk), every row and column. With 100 test trajectories this
+    caught ``jnp.sum`` over the cost's 21 error coordinates depending on the batch width (9 of
+    the 120 test costs 1 ulp apart), now summed in a fixed order (``plant.ordered_sum``)."""
     from conftest import cli
 
     common = ["run", "hover", "--seeds", "40", "--iterations", "3", "--methods", "dagger-t",

@@ -208,8 +208,6 @@ def make_plant(
         raise ValueError(f"cost_cap must be > 0, got {cost_cap!r}")
     target = jnp.asarray(task.target, dtype=jnp.float64)
     x0 = jnp.asarray(task.x0, dtype=jnp.float64)
-    Q = jnp.asarray(task.Q, dtype=jnp.float64)
-    R = jnp.asarray(task.R, dtype=jnp.float64)
     d = int(task.delay)
     std = float(task.noise_std)
     horizon = int(target.shape[0]) - 1
@@ -275,9 +273,16 @@ def make_plant(
         one = Transitions(x[None], dx[None], du[None], dx_next[None], t[None], jnp.ones(1, bool))
         return jax.tree_util.tree_map(lambda a: a[0], clean(one))
 
+    def gain(K_t: jax.Array, dx: jax.Array) -> jax.Array:
+        """``−K_t dx`` ``[m]`` of ``K_t [m, n]``, ``dx [n]``, summed j = 0, 1, ..., n − 1."""
+        return -sum(K_t[:, j] * dx[j] for j in range(n))
+
     def eval_one(K: jax.Array, noise: jax.Array) -> tuple[jax.Array, jax.Array]:
         """Capped total cost and diverged flag of one test trajectory of ``K`` under process
-        noise ``[horizon, n_noise]``."""
+        noise ``[horizon, n_noise]``. Its sums run in the fixed orders of :func:`eval_seeds`
+        (``du`` term by term over the n error coordinates, the costs by :func:`ordered_sum`),
+        so that a vmapped batch of it (the mixture policy's path) gives each trajectory the
+        same bits at any batch size (a batched ``@`` need not)."""
 
         def body(carry, inp):
             x, memory, total = carry
@@ -285,19 +290,19 @@ def make_plant(
             dx = to_error(x, target[tau])
             if latency:
                 observed = jnp.concatenate([memory, dx[None]], axis=0)
-                du = -K[jnp.maximum(tau - d, 0)] @ observed[0]
+                du = gain(K[jnp.maximum(tau - d, 0)], observed[0])
                 x, _ = step_delayed(x, no_fifo, du, w)
                 memory = observed[1:]
             else:
-                du = -K[tau] @ dx
+                du = gain(K[tau], dx)
                 x, memory = step_delayed(x, memory, du, w)
-            total = total + dx @ Q @ dx + du @ R @ du
+            total = total + quad_Q(dx) + quad_R(du)
             return (x, memory, total), None
 
         taus = jnp.arange(horizon, dtype=jnp.int32)
         (x, _, total), _ = jax.lax.scan(body, (x0, memory0, jnp.float64(0.0)), (noise, taus))
         dx = to_error(x, target[horizon])
-        total = total + dx @ Q @ dx
+        total = total + quad_Q(dx)
         diverged = ~jnp.isfinite(total) | (total >= cost_cap)
         return jnp.where(diverged, cost_cap, total), diverged
 
@@ -368,12 +373,49 @@ def check_delay_reading(delay_mode: str, nu_pending: str) -> None:
         )
 
 
+def ordered_sum(x, axis: int = 0) -> jax.Array:
+    """The sum of ``x`` over ``axis`` (that axis removed) in one fixed order, whatever the other
+    axes' sizes: pairwise halving, ``s ← s[:h] + s[h:2h]`` (an odd last element carried along,
+    ``h = ⌊len/2⌋``) until one element is left; ``len − 1`` elementwise adds in all.
+
+    Why not ``jnp.sum``: XLA's CPU backend picks its reduction loop (vectorised, tiled) from the
+    whole shape, so the order in which a column's terms are added, and so the sum's last bit,
+    depends on how many columns sit beside it. Measured: ``jnp.sum(v, axis=0)`` over the 21 rows
+    of ``[21, b]`` differs in ~1 of 3 columns between b = 1400 and b = 2000 or 4000, and
+    ``jnp.mean(c, axis=1)`` over the 100 columns of ``c [S, 100]`` changes from S = 41 on. Here
+    every step is an elementwise add, which XLA does not reassociate, so a column's (a seed's) sum
+    is the same number in any batch (:mod:`loopid.experiments.chunks`). Also more accurate than a
+    sequential sum (error growth log₂ n)."""
+    x = jnp.asarray(x)
+    axis = axis % x.ndim
+    n = x.shape[axis]
+    if n == 0:
+        return jnp.zeros(x.shape[:axis] + x.shape[axis + 1 :], x.dtype)
+    while n > 1:
+        h = n // 2
+        head = jax.lax.slice_in_dim(x, 0, h, axis=axis)
+        pair = head + jax.lax.slice_in_dim(x, h, 2 * h, axis=axis)
+        if n % 2:
+            pair = jnp.concatenate([pair, jax.lax.slice_in_dim(x, 2 * h, n, axis=axis)], axis)
+        x, n = pair, h + n % 2
+    return jnp.squeeze(x, axis)
+
+
 def _quadratic_form(M) -> Callable[[jax.Array], jax.Array]:
     """``v ↦ vᵀ M v`` over the leading axis of ``v [k, *B]`` (-> ``[*B]``); a diagonal ``M`` (the
-    usual cost weights, checked here on the concrete matrix) costs k products instead of k²."""
+    usual cost weights, checked here on the concrete matrix) costs k products instead of k².
+
+    Both sums run in a fixed order (:func:`ordered_sum`), so a column's value does not depend
+    on the batch ``*B`` beside it: a trajectory's test cost is the same bits in a chunk of 14
+    seeds as in one of 40."""
     M_np = np.asarray(M, np.float64)
     if np.array_equal(M_np, np.diag(np.diag(M_np))):
         w = jnp.asarray(np.diag(M_np))
-        return lambda v: jnp.sum(w.reshape(w.shape + (1,) * (v.ndim - 1)) * v * v, axis=0)
+        return lambda v: ordered_sum(w.reshape(w.shape + (1,) * (v.ndim - 1)) * v * v, axis=0)
     M_j = jnp.asarray(M_np)
-    return lambda v: jnp.sum(v * jnp.tensordot(M_j, v, axes=1), axis=0)
+
+    def quad(v):  # (M v)_i = Σ_j M_ij v_j, then Σ_i v_i (M v)_i
+        Mv = ordered_sum(M_j.reshape(M_j.shape + (1,) * (v.ndim - 1)) * v[None], axis=1)
+        return ordered_sum(v * Mv, axis=0)
+
+    return quad
