@@ -37,17 +37,18 @@ def reference() -> float:
     return float(fly(swingup(), np.asarray(control.as_gains(sol))[None])[0][0])
 
 
-def fly(s: gym.GymScenario, K) -> tuple[np.ndarray, np.ndarray]:
+def fly(s: gym.GymScenario, K, rollouts: bool = False):
     """Gym costs [S] and angles θ [S, 200] of the gains ``K [S, 200, 1, 4]`` flown once each on
-    the real hanging pendulum (its reward as the cost)."""
+    the real hanging pendulum (its reward as the cost), and with ``rollouts`` the flights."""
     system = gym.make_system(s)
     try:
         costs, _ = flown_episodes(system, K, list(range(len(K))), 1, "reward")
         slots = [Slot(0, i, 0, 0.0, False) for i in range(len(K))]
-        obs = system.rollouts([system.linear_policy(K)], slots).x
+        r = system.rollouts([system.linear_policy(K)], slots)
     finally:
         system.close()
-    return costs[:, 0], np.arctan2(obs[..., 1], obs[..., 0])
+    out = costs[:, 0], np.arctan2(r.x[..., 1], r.x[..., 0])
+    return (*out, r) if rollouts else out
 
 
 @pytest.mark.slow
@@ -62,10 +63,20 @@ def test_dagger_swings_the_pendulum_up_with_features_and_the_linear_model_cannot
     assert 280 < reference < 320
     s = swingup(seeds=3, test_trajectories=1)
     trace = gym.run("dagger", s)
-    costs, theta = fly(s, trace.final["K"])
+    costs, theta, flights = fly(s, trace.final["K"], rollouts=True)
     upright = np.all(np.abs(theta[:, 150:]) < 0.1, axis=1)
     assert np.sum(upright & (costs <= 1.5 * reference)) >= 2, (costs, reference)
     np.testing.assert_allclose(trace.rows.test_cost[:, -1], costs, rtol=1e-6)
+
+    # the saved model, reloaded (loopid.load's path), predicts the real pendulum along its own
+    # policy's flight: one-step error well below the nominal's (Δx' = Δx), ~3e-1 (measured ...)
+    shared = {f"shared.{k}": v for k, v in gym.shared(s, "dagger").items()}
+    arrays = {"K": trace.final["K"][0], "W_features": trace.final["W_features"][0], **shared}
+    model, _ = gym.load(s, "dagger", arrays)
+    keep = flights.mask[0]
+    dx, du, dx_next = flights.dx[0][keep], flights.du[0][keep], flights.dx_next[0][keep]
+    error = np.mean(np.sum((model.predict(dx, du) - dx_next) ** 2, axis=1))
+    assert error < 1e-2 * np.mean(np.sum((dx - dx_next) ** 2, axis=1)), error
 
     linear = swingup(seeds=3, test_trajectories=1, model_kind="linear", planner_kind="lqr",
                      iterations=4)  # fmt: skip

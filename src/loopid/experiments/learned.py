@@ -10,6 +10,8 @@
 - :class:`LinearModel`: the linear offset model, nominal plus learned offsets ``W``; its
   :meth:`LinearModel.predict` is the learner's own prediction
   (:func:`loopid.models.linear_offset.predict`), bit for bit.
+- :class:`FeatureModel`: a feature model (:mod:`loopid.models.feature_model`), nominal plus
+  ``W_featuresᵀ φ(Δx, Δu)``; its :meth:`FeatureModel.predict` is the learner's prediction.
 - :class:`TableModel`: a finite MDP's learned transition probabilities ``T̂ [S, A, S]``.
 
 Each family's ``load`` builds them from a cell's saved arrays; :func:`loopid.load` finds those.
@@ -20,6 +22,7 @@ from typing import Any, NamedTuple
 
 import numpy as np
 
+from loopid.models import feature_model
 from loopid.models.linear_offset import LinearOffsetModel, predict, to_matrices
 
 
@@ -40,6 +43,19 @@ class LinearModel(NamedTuple):
         learner from (:func:`loopid.algorithms.model_based.linear_agent`)."""
         A, B = to_matrices(self.nominal, self.W)
         return LinearOffsetModel(A, B)
+
+
+class FeatureModel(NamedTuple):
+    """``Δx' = AΔx + BΔu + Wᵀφ(Δx, Δu)``: the nominal ``(A, B)``, the feature map ``fmap`` and
+    the learned ``W [F, n]`` (one for every step)."""
+
+    nominal: LinearOffsetModel
+    fmap: Any
+    W: np.ndarray
+
+    def predict(self, dx, du, t=None) -> np.ndarray:
+        """The predicted next error state ``[b, n]`` of rows ``dx [b, n]``, ``du [b, m]``."""
+        return np.asarray(feature_model.predict(self.nominal, self.fmap, self.W, dx, du, t))
 
 
 class TableModel(NamedTuple):

@@ -143,7 +143,6 @@ def model_class(s, nominal):
     hidden layers of ``model_hidden`` units)."""
     from loopid.algorithms.planning_agent import feature_model, mlp_model
     from loopid.learners import ftrl_least_squares
-    from loopid.models.feature_model import polynomial, random_fourier
     from loopid.models.mlp import mlp_learner
 
     n, m = nominal.n, nominal.m
@@ -153,10 +152,16 @@ def model_class(s, nominal):
             steps=s.model_steps, capacity=s.model_buffer,
         )  # fmt: skip
         return mlp_model(nominal, learner, seed=s.model_seed)
+    return feature_model(nominal, feature_map(s, n, m), ftrl_least_squares(s.ftrl_lambda))
+
+
+def feature_map(s, n: int, m: int):
+    """The feature map of the config ``s`` (``linear``: the degree-1 map) for sizes n, m: what
+    a saved ``W_features`` multiplies (:class:`loopid.experiments.learned.FeatureModel`)."""
+    from loopid.models.feature_model import polynomial, random_fourier
+
     if s.model_kind == "linear":
-        fmap = polynomial(n, m, 1)
-    elif s.model_features == "polynomial":
-        fmap = polynomial(n, m, s.model_degree)
-    else:
-        fmap = random_fourier(n, m, s.model_count, s.model_bandwidth, s.model_seed)
-    return feature_model(nominal, fmap, ftrl_least_squares(s.ftrl_lambda))
+        return polynomial(n, m, 1)
+    if s.model_features == "polynomial":
+        return polynomial(n, m, s.model_degree)
+    return random_fourier(n, m, s.model_count, s.model_bandwidth, s.model_seed)

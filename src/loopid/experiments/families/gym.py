@@ -537,7 +537,7 @@ def report(table: pa.Table, configs) -> list[str]:
 def load(s: GymScenario, method: str, arrays: dict):
     """One seed's saved model and controller in the env's coordinates: ``a = a_op − K_t [o[observe]
     − o*; 1]`` (the env is made once to read its sizes and operating action, then closed)."""
-    from loopid.experiments.learned import GainController, LinearModel
+    from loopid.experiments.learned import FeatureModel, GainController, LinearModel
 
     system = make_system(s)
     try:
@@ -551,10 +551,14 @@ def load(s: GymScenario, method: str, arrays: dict):
         o = obs if observe is None else obs[np.asarray(observe)]
         return np.concatenate([o - target, [1.0]])
 
-    model = None
-    if "W" in arrays:  # the nominal the cell kept (shared.A, shared.B)
+    model = None  # the MLP's network is saved (mlp.*) but not rebuilt here
+    if "W" in arrays or "W_features" in arrays:  # the nominal the cell kept (shared.A, .B)
         nominal = LinearOffsetModel(np.asarray(arrays["shared.A"]), np.asarray(arrays["shared.B"]))
-        model = LinearModel(nominal, arrays["W"])
+        if "W" in arrays:
+            model = LinearModel(nominal, arrays["W"])
+        else:
+            fmap = model_planner.feature_map(s, nominal.n, nominal.m)
+            model = FeatureModel(nominal, fmap, arrays["W_features"])
     return model, GainController(arrays["K"], error, np.asarray(shape.a_op))
 
 

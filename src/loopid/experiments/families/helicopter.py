@@ -236,7 +236,7 @@ def figure(table, path, configs) -> None:
 def load(s: Scenario, method: str, arrays: dict):
     """One seed's saved model and controller (:mod:`loopid.experiments.saved`): the gains act on
     ``to_error(x_t, x*_t)`` and give the control change Δu (the Gymnasium envs' action)."""
-    from loopid.experiments.learned import GainController, LinearModel
+    from loopid.experiments.learned import FeatureModel, GainController, LinearModel
 
     st = setup(s)
     target = np.asarray(st.plant.task.target)
@@ -247,10 +247,15 @@ def load(s: Scenario, method: str, arrays: dict):
 
     delay = st.plant.task.delay if s.delay_mode == "latency" else 0
     controller = GainController(arrays["K"], error, np.zeros(helicopter.N_ACTION), delay)
-    model = None
-    if "W" in arrays:  # the saved nominal when the cell kept it, else the scenario's
+    model = None  # the MLP's network is saved (mlp.*) but not rebuilt here
+    if "W" in arrays or "W_features" in arrays:  # the saved nominal, else the scenario's
         A, B = arrays.get("shared.A", st.nominal.A), arrays.get("shared.B", st.nominal.B)
-        model = LinearModel(LinearOffsetModel(np.asarray(A), np.asarray(B)), arrays["W"])
+        nominal = LinearOffsetModel(np.asarray(A), np.asarray(B))
+        if "W" in arrays:
+            model = LinearModel(nominal, arrays["W"])
+        else:
+            fmap = model_planner.feature_map(s, nominal.n, nominal.m)
+            model = FeatureModel(nominal, fmap, arrays["W_features"])
     return model, controller
 
 
