@@ -1,7 +1,11 @@
 """Value iteration on 20 random MDPs (S = 500, A = 8, γ = 0.95), batched in JAX, against a
 plain NumPy loop (one MDP at a time, one matrix-vector product per backup, the same stopping
 rule). Each is timed 3 times, alternating so both see the same machine load, after compilation;
-prints the best of each and the ratio.
+prints the best of each, its CPU seconds (process time: CPU / wall is the number of cores it kept
+busy) and the ratio. Both use every core: NumPy's OpenBLAS runs its matrix-vector products on
+``OPENBLAS_NUM_THREADS`` threads (default: the core count), and XLA splits each backup's
+``[S·A, S] @ [S]`` product over its intra-op thread pool (measured: per-thread CPU time is even
+over 2 threads). Both are bound by reading P (16 MB per MDP and backup) from the cache.
 
     .venv/bin/python benchmarks/mdp.py
 """
@@ -35,13 +39,14 @@ def numpy_vi(P, C, gamma, tol):
 
 
 def best_of_alternating(fs, repeats=3):
-    """Best time and an output of each function in ``fs``, run in turn ``repeats`` times."""
+    """Best (wall, CPU) seconds and an output of each function in ``fs``, run in turn
+    ``repeats`` times."""
     times, outs = [[] for _ in fs], [None] * len(fs)
     for _ in range(repeats):
         for i, f in enumerate(fs):
-            t0 = time.perf_counter()
+            t0, c0 = time.perf_counter(), time.process_time()
             outs[i] = f()
-            times[i].append(time.perf_counter() - t0)
+            times[i].append((time.perf_counter() - t0, time.process_time() - c0))
     return [min(t) for t in times], outs
 
 
@@ -58,13 +63,16 @@ def main():
     def numpy_run():
         return [numpy_vi(P[i], C[i], GAMMA, TOL) for i in range(B)]
 
-    (t_jax, t_np), (sol, outs) = best_of_alternating([jax_run, numpy_run])
+    ((t_jax, c_jax), (t_np, c_np)), (sol, outs) = best_of_alternating([jax_run, numpy_run])
     err = max(np.abs(np.asarray(sol.V[i]) - outs[i][0]).max() for i in range(B))
     print(f"value iteration, {B} MDPs, S={S}, A={A}, gamma={GAMMA}, tol={TOL:g}")
     print(f"{os.cpu_count()} cores, jax on {jax.devices()[0].device_kind}")
-    print(f"{'implementation':<28}{'seconds':>10}{'backups':>10}")
-    print(f"{'jax batched (vi)':<28}{t_jax:>10.3f}{int(sol.iterations):>10}")
-    print(f"{'numpy loop over MDPs':<28}{t_np:>10.3f}{max(o[1] for o in outs):>10}")
+    blas = os.environ.get("OPENBLAS_NUM_THREADS", "default")
+    print(f"OPENBLAS_NUM_THREADS={blas}, load average {os.getloadavg()[0]:.2f}")
+    print(f"{'implementation':<28}{'seconds':>10}{'cpu s':>10}{'backups':>10}")
+    print(f"{'jax batched (vi)':<28}{t_jax:>10.3f}{c_jax:>10.3f}{int(sol.iterations):>10}")
+    backups = max(o[1] for o in outs)
+    print(f"{'numpy loop over MDPs':<28}{t_np:>10.3f}{c_np:>10.3f}{backups:>10}")
     print(f"ratio numpy / jax: {t_np / t_jax:.2f}x   max |V_jax - V_numpy| = {err:.1e}")
 
 

@@ -244,42 +244,44 @@ def _vi_chunked_core(P, C, g, V0, tol, max_iter, chunk, padded):
     """The whole-batch loop of :func:`_vi_core` run a chunk at a time (``value_iteration``'s
     doc). ``P [n, S, A, S]``, ``C [n, S, A]``, ``g [n]``, ``V0 [n, S]``; the batch is padded to
     ``padded`` with copies of the last MDP (they meet the rule when it does). Returns
-    ``V [n, S]``, ``δ [n]`` and the common count ``K``."""
-    n, S = V0.shape
+    ``V [n, S]``, ``δ [n]`` and the common count ``K``.
+
+    Chunk ``i`` is rows ``[i·chunk, (i+1)·chunk)`` of P, sliced in place (``lax.dynamic_slice``)
+    only when the chunk has work to do: P is never reshaped to ``[m, chunk, ...]`` (that cost a
+    layout copy of the whole batch's P, 320 MB in ``benchmarks/mdp.py``, at every call)."""
+    n = V0.shape[0]
     if padded > n:
         pad = lambda x: jnp.concatenate([x, jnp.repeat(x[-1:], padded - n, axis=0)])  # noqa: E731
         P, C, g, V0 = pad(P), pad(C), pad(g), pad(V0)
     m = padded // chunk
-    P, C, g = (
-        P.reshape(m, chunk, *P.shape[1:]),
-        C.reshape(m, chunk, *C.shape[1:]),
-        g.reshape(m, chunk),
-    )
-    threshold = tol * (1.0 - g) / g  # γδ/(1−γ) ≤ tol
+    threshold = tol * (1.0 - g) / g  # [padded]: γδ/(1−γ) ≤ tol
+    rows = lambda x, i: jax.lax.dynamic_slice_in_dim(x, i * chunk, chunk)  # noqa: E731
 
-    def more(K, i, delta, k):
-        """Chunk ``i`` needs another backup: fewer than K, or short of the rule and not capped."""
-        return (k < K) | ((k < max_iter) & jnp.any(delta > threshold[i]))
+    def more(K, t, delta, k):
+        """A chunk needs another backup: fewer than K, or short of the rule and not capped."""
+        return (k < K) | ((k < max_iter) & jnp.any(delta > t))
 
     def one_chunk(i, state):
-        """Bring chunk ``i`` to at least K backups that meet the rule (or are capped); P[i] is
-        sliced only when the chunk has work to do."""
+        """Bring chunk ``i`` to at least K backups that meet the rule (or are capped)."""
         _, delta, k, K = state
+        t_i = rows(threshold, i)
 
         def run(state):
             V, delta, k, K = state
-            P_i, C_i, g_i = P[i], C[i], g[i]
+            P_i, C_i, g_i = rows(P, i), rows(C, i), rows(g, i)
 
             def body(carry):
                 V, _, k = carry
                 return *_backup(P_i, C_i, g_i, V), k + 1
 
             V_i, d_i, k_i = jax.lax.while_loop(
-                lambda c: more(K, i, c[1], c[2]), body, (V[i], delta[i], k[i])
+                lambda c: more(K, t_i, c[1], c[2]), body, (rows(V, i), rows(delta, i), k[i])
             )
-            return V.at[i].set(V_i), delta.at[i].set(d_i), k.at[i].set(k_i), K
+            V = jax.lax.dynamic_update_slice_in_dim(V, V_i, i * chunk, 0)
+            delta = jax.lax.dynamic_update_slice_in_dim(delta, d_i, i * chunk, 0)
+            return V, delta, k.at[i].set(k_i), K
 
-        return jax.lax.cond(more(K, i, delta[i], k[i]), run, lambda s: s, state)
+        return jax.lax.cond(more(K, t_i, rows(delta, i), k[i]), run, lambda s: s, state)
 
     def round_cond(carry):
         _, _, k, started = carry
@@ -290,14 +292,9 @@ def _vi_chunked_core(P, C, g, V0, tol, max_iter, chunk, padded):
         V, delta, k, _ = jax.lax.fori_loop(0, m, one_chunk, (V, delta, k, jnp.max(k)))
         return V, delta, k, jnp.bool_(True)
 
-    init = (
-        V0.reshape(m, chunk, S),
-        jnp.full((m, chunk), jnp.inf, jnp.float64),
-        jnp.zeros(m, jnp.int32),
-        jnp.bool_(False),
-    )
+    init = (V0, jnp.full(padded, jnp.inf, jnp.float64), jnp.zeros(m, jnp.int32), jnp.bool_(False))
     V, delta, k, _ = jax.lax.while_loop(round_cond, round_body, init)
-    return V.reshape(padded, S)[:n], delta.reshape(padded)[:n], k[0]
+    return V[:n], delta[:n], k[0]
 
 
 _value_iteration_chunked = jax.jit(_vi_chunked_core, static_argnums=(4, 5, 6, 7))
