@@ -69,7 +69,7 @@ def test_dagger_swings_the_pendulum_up_with_features_and_the_linear_model_cannot
     np.testing.assert_allclose(trace.rows.test_cost[:, -1], costs, rtol=1e-6)
 
     # the saved model, reloaded (loopid.load's path), predicts the real pendulum along its own
-    # policy's flight: one-step error well below the nominal's (Δx' = Δx), ~3e-1 (measured ...)
+    # policy's flight: one-step error below 1% of the nominal's (Δx' = Δx)
     shared = {f"shared.{k}": v for k, v in gym.shared(s, "dagger").items()}
     arrays = {"K": trace.final["K"][0], "W_features": trace.final["W_features"][0], **shared}
     model, _ = gym.load(s, "dagger", arrays)
@@ -88,9 +88,11 @@ def test_dagger_swings_the_pendulum_up_with_features_and_the_linear_model_cannot
 @pytest.mark.slow
 def test_the_mlp_learns_online_and_its_plan_beats_the_first_policy():
     """The MLP model (two hidden layers of 32, 100 Adam steps per update) on the swing-up, DAgger,
-    2 seeds: the online loss falls over iterations (measured: ... ) and the last policy's test
-    cost is below the first policy's on every seed. Non-convex: no regret claim, only the
-    online loss is reported."""
+    2 seeds, 4 iterations: the model's loss on ν's fresh draws (before each update) falls over
+    iterations (measured 0.039 -> 0.0048 and 0.077 -> 0.0089 from iteration 2 to 4) and the
+    last policy's test cost is below the first policy's on every seed (1974 -> 1112 and 1302;
+    it does not swing up in 4 iterations). Non-convex: no regret claim, only the online loss is
+    reported."""
     s = swingup(seeds=2, iterations=4, test_trajectories=1, model_kind="mlp", model_hidden=32,
                 model_steps=100, planner_iterations=30)  # fmt: skip
     rows = gym.run("dagger", s).rows
