@@ -17,7 +17,8 @@ never NaN.
 - :func:`plan` (iLQR on a learned model whose parameters are traced), :func:`as_gains` (its
   policy as the loop's gains ``K [T, m, n]``), :func:`mpc_rollout` / :class:`MPCController`
   (receding-horizon iLQR in JAX and for Gymnasium envs), :class:`Penalized`,
-  :func:`quadratic_cost`: the planner of nonlinear models (issue 19)
+  :func:`quadratic_cost`, :func:`action_penalty`: the planner of nonlinear models (issue 19;
+  :mod:`loopid.control.plan`, :mod:`loopid.control.mpc`)
 - :func:`rollout`, :func:`linear_rollout`, :func:`tracking_rollout` -> trajectories
 - :func:`value_iteration`, :func:`policy_iteration`, :func:`evaluate`, :func:`occupancy`: finite
   MDPs (batched), exact policy evaluation and discounted occupancy D_{μ,π}
@@ -25,13 +26,12 @@ never NaN.
 
 from loopid.control.ilqr import ILQRSolution, Quadratization, ilqr, quadratize, trajectory_cost
 from loopid.control.lqr import LQRSolution, dlqr, dlqr_affine
-from loopid.control.planner import (
-    MPCController,
-    MPCRollout,
+from loopid.control.mpc import MPCController, MPCRollout, mpc_rollout
+from loopid.control.plan import (
     Penalized,
     QuadraticCost,
+    action_penalty,
     as_gains,
-    mpc_rollout,
     plan,
     quadratic_cost,
 )
@@ -60,6 +60,7 @@ __all__ = [
     "Rollout",
     "TVLQRSolution",
     "VIResult",
+    "action_penalty",
     "as_gains",
     "dlqr",
     "dlqr_affine",
