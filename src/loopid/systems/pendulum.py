@@ -109,7 +109,7 @@ def cost_obs(dx: Array, du: Array, t=None, params: PendulumParams = DEFAULT) -> 
     (= angle_normalize(θ) up to rounding), ``Δx [4]``, ``Δu [1]`` -> scalar.
 
     The planning cost of the swing-up (with a torque penalty, see the module docstring of
-    :mod:`loopid.control.planner`): its gradient does not vanish at the bottom, where the
+    :mod:`loopid.control.plan`): its gradient does not vanish at the bottom, where the
     quadratic ``ΔxᵀQΔx`` looks like a minimum to iLQR's Gauss-Newton model."""
     return cost(from_error(dx), du, t, params)
 

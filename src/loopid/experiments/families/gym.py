@@ -384,7 +384,7 @@ def _start(s: GymScenario, shape: Shape) -> np.ndarray:
 
 def _planning_learner(s: GymScenario, shape: Shape, cost, nominal) -> Learner:
     """A model class of :mod:`loopid.algorithms.planning_agent` planned by iLQR (or MPC) on the
-    cost's Q, R, with the action box kept by :func:`loopid.control.planner.action_penalty`."""
+    cost's Q, R, with the action box kept by :func:`loopid.control.action_penalty`."""
     from loopid.algorithms.planning_agent import ilqr_plan, planning_agent
     from loopid.control import MPCController, Penalized, quadratic_cost
 
