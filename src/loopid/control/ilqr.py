@@ -223,6 +223,20 @@ def _ilqr(
     return ILQRSolution(s.X, s.U, final.K, final.k, s.J, s.it, s.converged, history)
 
 
+def check_settings(alphas, mu_init, mu_min, mu_max, mu_factor) -> Array:
+    """The line search's step sizes as a float64 vector, and the Levenberg-Marquardt schedule
+    checked: one-line ``ValueError`` naming a bad value (also for :func:`loopid.control.plan`)."""
+    alphas = jnp.asarray(alphas, jnp.float64)
+    if alphas.ndim != 1 or alphas.shape[0] < 1:
+        raise ValueError(f"alphas must be a non-empty 1-D sequence, got shape {alphas.shape}")
+    if not (mu_factor > 1.0 and 0.0 <= mu_init and 0.0 < mu_min < mu_max):
+        raise ValueError(
+            f"need mu_factor > 1, mu_init >= 0, 0 < mu_min < mu_max; got mu_factor={mu_factor}, "
+            f"mu_init={mu_init}, mu_min={mu_min}, mu_max={mu_max}"
+        )
+    return alphas
+
+
 _ilqr_jit = jax.jit(_ilqr, static_argnames=("dynamics", "cost", "max_iter"))
 
 
@@ -272,14 +286,7 @@ def ilqr(
         raise ValueError(f"U0 must have shape [T, m] with T >= 1, got shape {sU}")
     if isinstance(max_iter, bool) or not isinstance(max_iter, int) or max_iter < 1:
         raise ValueError(f"max_iter must be a positive int, got {max_iter!r}")
-    alphas = jnp.asarray(alphas, jnp.float64)
-    if alphas.ndim != 1 or alphas.shape[0] < 1:
-        raise ValueError(f"alphas must be a non-empty 1-D sequence, got shape {alphas.shape}")
-    if not (mu_factor > 1.0 and 0.0 <= mu_init and 0.0 < mu_min < mu_max):
-        raise ValueError(
-            f"need mu_factor > 1, mu_init >= 0, 0 < mu_min < mu_max; got mu_factor={mu_factor}, "
-            f"mu_init={mu_init}, mu_min={mu_min}, mu_max={mu_max}"
-        )
+    alphas = check_settings(alphas, mu_init, mu_min, mu_max, mu_factor)
     if K0 is not None and shape_of("K0", K0) != (sU[0], sU[1], sx[0]):
         raise ValueError(f"K0 must have shape {(sU[0], sU[1], sx[0])}, got {shape_of('K0', K0)}")
     check_finite("x0", x0)

@@ -51,7 +51,7 @@ import numpy as np
 from jax import Array
 
 from loopid.control._checks import check_finite, shape_of
-from loopid.control.ilqr import DEFAULT_ALPHAS, ILQRSolution, _ilqr
+from loopid.control.ilqr import DEFAULT_ALPHAS, ILQRSolution, _ilqr, check_settings
 
 __all__ = [
     "MPCRollout",
@@ -148,18 +148,6 @@ def _check_every(every, horizon: int) -> int:
     return int(every)
 
 
-def _check_ilqr(alphas, mu_init, mu_min, mu_max, mu_factor) -> Array:
-    alphas = jnp.asarray(alphas, jnp.float64)
-    if alphas.ndim != 1 or alphas.shape[0] < 1:
-        raise ValueError(f"alphas must be a non-empty 1-D sequence, got shape {alphas.shape}")
-    if not (mu_factor > 1.0 and 0.0 <= mu_init and 0.0 < mu_min < mu_max):
-        raise ValueError(
-            f"need mu_factor > 1, mu_init >= 0, 0 < mu_min < mu_max; got mu_factor={mu_factor}, "
-            f"mu_init={mu_init}, mu_min={mu_min}, mu_max={mu_max}"
-        )
-    return alphas
-
-
 def _check_problem(dynamics, cost, params, x0, U0, t0=0) -> tuple[int, int]:
     """Shapes of x0 [n] and U0 [T, m] and of what dynamics/cost return (jax.eval_shape)."""
     sx = shape_of("x0", x0)
@@ -222,7 +210,7 @@ class _Settings(NamedTuple):
 
 
 def _settings(alphas, tol, atol, mu_init, mu_min, mu_max, mu_factor) -> _Settings:
-    alphas = _check_ilqr(alphas, mu_init, mu_min, mu_max, mu_factor)
+    alphas = check_settings(alphas, mu_init, mu_min, mu_max, mu_factor)
     f = lambda v: jnp.asarray(v, jnp.float64)  # noqa: E731
     return _Settings(alphas, f(tol), f(atol), f(mu_init), f(mu_min), f(mu_max), f(mu_factor))
 
