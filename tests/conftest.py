@@ -45,3 +45,14 @@ def cli(*args, cache: Path, **popen):
     if popen:
         return subprocess.Popen(command, env=env, **popen)
     return subprocess.run(command, capture_output=True, text=True, env=env, timeout=900)
+
+
+@pytest.fixture(scope="session")
+def funnel_setup():
+    """The padded funnel scenario's Setup (plant, iLQR expert gains, nominal), computed once per
+    session: the expert's iLQR on the 599-step funnel is one of the suite's longest computations,
+    and the runner's own cache (a few entries) is evicted between the modules that use it."""
+    from loopid.experiments.families.helicopter import setup
+    from loopid.experiments.scenarios import scenario
+
+    return setup(scenario("funnel"))

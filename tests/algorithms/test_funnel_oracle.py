@@ -12,7 +12,6 @@ import numpy as np
 import pytest
 
 from loopid.algorithms import loop
-from loopid.algorithms.expert import expert_gains
 from loopid.algorithms.model_based import finite_horizon_gains
 from loopid.experiments.families.helicopter import helicopter_plant
 from loopid.systems import helicopter as h
@@ -20,11 +19,11 @@ from loopid.systems.tasks import make_task
 
 
 @pytest.mark.slow
-def test_tvlqr_on_the_true_linearisation_flies_the_funnel_like_the_expert():
-    task = make_task("funnel")
+def test_tvlqr_on_the_true_linearisation_flies_the_funnel_like_the_expert(funnel_setup):
+    task = funnel_setup.plant.task  # make_task("funnel")
     plant = helicopter_plant(task)
-    K_expert = expert_gains(task)
-    flight = helicopter_plant(make_task("funnel", noise_std=0.0)).rollout(
+    K_expert = funnel_setup.K_expert  # expert_gains(task), shared with the other funnel tests
+    flight = jax.jit(helicopter_plant(make_task("funnel", noise_std=0.0)).rollout)(
         K_expert, jax.random.key(0)
     )
     assert bool(flight.mask.all())
@@ -40,10 +39,11 @@ def test_tvlqr_on_the_true_linearisation_flies_the_funnel_like_the_expert():
         A = A.at[:, -1].add(offset).at[-1].set(jnp.zeros(21).at[-1].set(1.0))
         return A, B
 
-    A, B = jax.vmap(linearise)(flight.dx, flight.du, flight.t)
+    A, B = jax.jit(jax.vmap(linearise))(flight.dx, flight.du, flight.t)  # one compilation
     K = finite_horizon_gains(A, B, task.Q, task.R, plant.horizon)
     noise = loop.eval_noise(plant, loop.seed_keys(np.arange(2)), 10, "last").test
-    oracle = plant.eval_seeds(jnp.stack([K, K]), noise)[0]
-    expert = plant.eval_seeds(jnp.stack([K_expert, K_expert]), noise)[0]
+    eval_seeds = jax.jit(plant.eval_seeds)  # compiled once for both policies
+    oracle = eval_seeds(jnp.stack([K, K]), noise)[0]
+    expert = eval_seeds(jnp.stack([K_expert, K_expert]), noise)[0]
     assert float(jnp.max(expert)) < 60.0  # SPEC: about 49.4
     np.testing.assert_allclose(np.asarray(oracle), np.asarray(expert), rtol=0.02)

@@ -13,8 +13,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from loopid.experiments.families.helicopter import helicopter_plant, nominal_model, setup
-from loopid.experiments.scenarios import scenario
+from loopid.experiments.families.helicopter import helicopter_plant, nominal_model
 from loopid.models.linear_offset import time_varying_nominal
 from loopid.systems import helicopter as h
 from loopid.systems.funnel_nominal import (
@@ -32,9 +31,9 @@ CIRCLES = slice(100, 499)  # transitions with both ends on the circles (padded f
 
 
 @pytest.fixture(scope="module")
-def funnel():
-    """The padded funnel scenario's Setup (the iLQR expert, cached by the runner)."""
-    return setup(scenario("funnel"))
+def funnel(funnel_setup):
+    """The padded funnel scenario's Setup (the iLQR expert, computed once per session)."""
+    return funnel_setup
 
 
 @pytest.fixture(scope="module")
