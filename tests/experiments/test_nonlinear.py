@@ -157,3 +157,15 @@ def test_bad_settings_on_the_command_line_are_one_line_exit_2(cache, tmp_path):
         lines = done.stderr.strip().splitlines()
         assert len(lines) == 1 and ("planner_horizon" in lines[0] or "model_kind" in lines[0])
         assert not out.exists()
+
+
+def test_the_report_says_which_model_class_makes_a_regret_claim():
+    """report.md's note per scenario (model_planner.describe): the MLP's rows make no regret
+    claim, the feature model's and the linear model's are convex online learning."""
+    from loopid.experiments.model_planner import describe
+
+    assert "no regret claim" in describe(swingup(model_kind="mlp"))
+    assert "degree 3" in describe(swingup()) and "regret guarantee holds" in describe(swingup())
+    assert describe(scenario("hover")) == (
+        "Model: the linear offset model, learned by FTRL; planner: LQR."
+    )

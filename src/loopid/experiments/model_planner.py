@@ -165,3 +165,24 @@ def feature_map(s, n: int, m: int):
     if s.model_features == "polynomial":
         return polynomial(n, m, s.model_degree)
     return random_fourier(n, m, s.model_count, s.model_bandwidth, s.model_seed)
+
+
+def describe(s) -> str:
+    """One sentence for ``report.md``: the model class and the planner of the config ``s``, and
+    for the MLP that its rows make no regret claim."""
+    if s.model_kind == "features" and s.model_features == "polynomial":
+        what = f"polynomial features of degree {s.model_degree}"
+    else:
+        what = f"{s.model_count} random Fourier features (bandwidth {s.model_bandwidth:g})"
+    if s.model_kind == "features":
+        model = f"a feature model ({what}), learned by FTRL (convex: the regret guarantee holds)"
+    elif s.model_kind == "mlp":
+        model = (
+            f"an MLP ({s.model_layers} x {s.model_hidden} tanh) trained online with Adam "
+            "(non-convex: the online loss is reported, no regret claim is made)"
+        )
+    else:
+        model = "the linear offset model, learned by FTRL"
+    every = f"MPC (iLQR re-planned every {s.planner_every} steps)"
+    planner = {"lqr": "LQR", "ilqr": "iLQR over the task horizon", "mpc": every}[s.planner_kind]
+    return f"Model: {model}; planner: {planner}."

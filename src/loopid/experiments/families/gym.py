@@ -529,8 +529,11 @@ def figure(table: pa.Table, path, configs) -> None:
 
 def report(table: pa.Table, configs) -> list[str]:
     """The final costs per method, under the env's id."""
-    notes = {name: f"Env: `{s.env_id}`, horizon {s.horizon or 'the env limit'}, test cost "
-             f"{s.test_cost}." for name, s in configs.items()}  # fmt: skip
+    notes = {
+        name: f"Env: `{s.env_id}`, horizon {s.horizon or 'the env limit'}, test cost "
+        f"{s.test_cost}. {model_planner.describe(s)}"
+        for name, s in configs.items()
+    }
     return final_cost_sections(table, notes)
 
 

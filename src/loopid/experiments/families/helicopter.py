@@ -221,7 +221,11 @@ def memory(s: Scenario, method: str, seeds: int) -> int:
 
 def report(table, configs: dict[str, Scenario]) -> list[str]:
     """The final costs per panel, each with its readings of SPEC §5, and the five findings."""
-    notes = {name: f"Readings (SPEC §5): {readings_line(s)}." for name, s in configs.items()}
+    notes = {
+        name: f"Readings (SPEC §5): {readings_line(s)}."
+        + ("" if model_planner.is_default(s) else f" {model_planner.describe(s)}")
+        for name, s in configs.items()
+    }
     hover = {name for name, s in configs.items() if is_hover(s.task)}
     return [*final_cost_sections(table, notes), *findings_section(table, hover)]
 
