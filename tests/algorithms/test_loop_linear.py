@@ -6,6 +6,8 @@ cost. One compiled cell (:func:`make_cell`) serves every method: the policy frac
 traced argument, so DAgger (½), Batch (0) and Abbeel's schedule (0 then 1) share it.
 """
 
+import functools
+
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -73,8 +75,10 @@ class LinearSetup:
             self._runs[method] = (carry, stacked)
         return self._runs[method]
 
+    @functools.cached_property
     def optimal_costs(self):
-        """Mean test cost [S] of the optimal LQR policy on the loop's test noise."""
+        """Mean test cost [S] of the optimal LQR policy on the loop's test noise (computed once:
+        an eager evaluation recompiles its scan)."""
         K = jnp.broadcast_to(self.K_opt, (HORIZON, *self.K_opt.shape))
         S = self.noise.test.shape[2]
         costs, _ = self.plant.eval_seeds(jnp.broadcast_to(K, (S, *K.shape)), self.noise.test)
@@ -116,7 +120,7 @@ def test_realisable_loss_on_nu_reaches_noise_floor(lin, method):
 @pytest.mark.parametrize("method", ["dagger-t", "batch-t"])
 def test_realisable_reaches_optimal_cost(lin, method):
     _, rows = lin.run(method)
-    opt = lin.optimal_costs()
+    opt = lin.optimal_costs
     final = rows.test_cost[:, -1]
     np.testing.assert_allclose(final, opt, rtol=0.03)
     # the first policy (on the nominal model) is clearly worse, so the check can fail

@@ -1,9 +1,11 @@
 """Saved models and controllers (issue 17): every finished cell keeps each seed's final policy
 and model; reloaded, they reproduce the run's own numbers exactly."""
 
+import functools
 import json
 
 import gymnasium
+import jax
 import numpy as np
 import pytest
 
@@ -26,6 +28,14 @@ def hover_run(tmp_path_factory):
     return out, run_cells(out, [HOVER], METHODS)
 
 
+@functools.cache
+def jitted(fn):
+    """``jax.jit(fn)``, one per plant method: called eagerly, a plant's evaluation retraces and
+    recompiles its scan at every call (about 10 s each on 2 busy cores), jitted it compiles once
+    per shape."""
+    return jax.jit(fn)
+
+
 def final_costs(table, method: str) -> dict[int, float]:
     rows = table.to_pylist()
     last = max(r["iteration"] for r in rows)
@@ -42,7 +52,7 @@ def test_a_reloaded_helicopter_controller_gives_the_recorded_costs_exactly(hover
     for seed, recorded in final_costs(table, method).items():
         saved = loopid.load(out, "hover", method, seed)
         noise = cell.noise(seed_keys([seed])).test  # the run's own test noise for this seed
-        costs, _ = plant.eval_seeds(saved.controller.K[None], noise)
+        costs, _ = jitted(plant.eval_seeds)(saved.controller.K[None], noise)
         # the same costs; their mean to the last bits (NumPy sums in another order than XLA)
         assert float(np.mean(costs)) == pytest.approx(recorded, rel=1e-15)
 
@@ -190,7 +200,7 @@ def test_loopid_evaluate_reports_the_recorded_cost_within_its_standard_error(tmp
     worst = 0.0
     for r in rows:
         saved = loopid.load(out, "hover", r["method"], r["seed"])
-        run_costs, _ = plant.eval_seeds(
+        run_costs, _ = jitted(plant.eval_seeds)(
             saved.controller.K[None], cell.noise(seed_keys([r["seed"]])).test
         )
         run_costs = np.asarray(run_costs)[0]
