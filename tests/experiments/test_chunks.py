@@ -36,6 +36,31 @@ def test_split_pads_equal_chunks_and_covers_every_position_once():
     assert [(c.start, c.stop) for c in parts] == [(0, 2), (5, 7)]
 
 
+def test_plan_caps_chunks_for_speed_and_estimates_at_the_capped_size(tmp_path, monkeypatch):
+    """30 seeds that fit the budget whole still run in chunks of at most SPEED_SEEDS (3 of 10),
+    and the memory estimate is asked for that chunk's 10 seeds (the shape the run compiles)."""
+    from loopid.experiments import execute
+    from loopid.experiments.rundir import RunDir
+
+    asked = []
+
+    def estimate(s, method, seeds, progress=None):
+        asked.append(len(seeds))
+        return 1000 * len(seeds)
+
+    monkeypatch.setattr(execute, "estimate_memory", estimate)
+    s = scenario("hover", seeds=30, **SMALL)
+    family = execute.family_of(s)
+    jobs = execute._plan(RunDir(tmp_path), [(s, "dagger-t")], np.arange(30), family, 10**9,
+                         "local", {"workers": 1})  # fmt: skip
+    assert chunks.SPEED_SEEDS == 12 and asked == [10]
+    assert [job.part for job in jobs] == [(0, 10), (10, 20), (20, 30)]
+    # a budget below the cap decides: 6 seeds fit (6,000 bytes), so 5 chunks of 6
+    jobs = execute._plan(RunDir(tmp_path), [(s, "dagger-t")], np.arange(30), family, 6000,
+                         "local", {"workers": 1})  # fmt: skip
+    assert [len(job.seeds) for job in jobs] == [6] * 5
+
+
 def test_chunk_size_is_the_most_seeds_that_fit_and_refuses_in_one_line():
     assert chunks.chunk_size(1000, 10, 5000, "x") == 10
     assert chunks.chunk_size(1000, 10, 350, "x") == 3  # 100 bytes a seed at most
@@ -138,21 +163,27 @@ def test_memory_estimate_within_a_factor_of_two_of_the_measured_peak(name, metho
 
 @pytest.mark.slow
 def test_cli_memory_budget_gives_the_same_table(tmp_path, cache):
-    """The issue's check: ``loopid run hover --seeds 40`` with a 100 MB budget (3 chunks of 14:
-    a seed needs ~5.8 MB, most of it the test noise while it is drawn) gives the table of the
-    same command with 16 GB (one chunk), every row and column. With 100 test trajectories this
-    caught ``jnp.sum`` over the cost's 21 error coordinates depending on the batch width (9 of
-    the 120 test costs 1 ulp apart), now summed in a fixed order (``plant.ordered_sum``)."""
+    """The issue's check: ``loopid run hover --seeds 40`` under a small budget gives the table of
+    the same command with 16 GB, every row and column. 16 GB runs the speed-capped chunks
+    (``chunks.SPEED_SEEDS`` = 12: 4 chunks of 10); 30 MB holds 5 seeds (5.76 MB a seed, mostly
+    the test noise while it is drawn): 8 chunks of 5, other column counts in every batched sum.
+    (The issue's 100 MB now gives the capped chunks too.) With 100 test trajectories this caught
+    ``jnp.sum`` over the cost's 21 error coordinates depending on the batch width (9 of the 120
+    test costs 1 ulp apart, chunks of 14 against one of 40), now summed in a fixed order
+    (``plant.ordered_sum``)."""
     from conftest import cli
 
     common = ["run", "hover", "--seeds", "40", "--iterations", "3", "--methods", "dagger-t",
               "--workers", "1", "--quiet"]  # fmt: skip
-    small = cli(*common, "--memory", "0.1", "--out", tmp_path / "small", cache=cache)
+    small = cli(*common, "--memory", "0.03", "--out", tmp_path / "small", cache=cache)
     assert small.returncode == 0, small.stderr
-    meta = metadata(tmp_path / "small/cells/hover__dagger-t.parquet")
-    assert int(meta["chunks"]) == 3
     large = cli(*common, "--memory", "16", "--out", tmp_path / "large", cache=cache)
     assert large.returncode == 0, large.stderr
+    chunk_counts = [
+        int(metadata(tmp_path / f"{run}/cells/hover__dagger-t.parquet")["chunks"])
+        for run in ("small", "large")
+    ]
+    assert chunk_counts == [8, 4]
     a = read_table(tmp_path / "small/results.parquet")
     assert a.num_rows == 40 * 3 and a.equals(read_table(tmp_path / "large/results.parquet"))
     assert "seeds = 40" in (tmp_path / "small/config.toml").read_text()  # a count, not a list

@@ -14,22 +14,44 @@ A cell runs all its seeds as one vmapped program, so its memory grows with the s
   :data:`DEFAULT_FRACTION` of the memory this machine has available (``MemAvailable``, within a
   cgroup's limit) less :data:`PROCESS_BYTES` per process; each process gets an equal share.
 - **Chunks** (:func:`chunk_size`, :func:`split`): the programs' memory is affine in the seed count,
-  ``a + b·S`` with ``a ≥ 0``, so ``b ≤ M(S)/S`` and ``c = ⌊S · budget / M(S)⌋`` seeds fit. The
+  ``a + b·S`` with ``a ≥ 0``, so ``b ≤ M(S)/S`` and ``c = ⌊S · budget / M(S)⌋`` seeds fit
+  (S: the seed count, at most :data:`SPEED_SEEDS`, the estimate is made at). The
   seeds are split into ``k = ⌈S / c⌉`` chunks of ``⌈S / k⌉``; the last is padded with copies
   of its last seed (dropped afterwards), so every chunk runs one compiled program.
+- **Speed cap** (:data:`SPEED_SEEDS`): a chunk also holds at most this many seeds, even when
+  more fit the budget, because the cost per seed grows with the chunk once a chunk's working
+  set outgrows the core's cache. The test rollouts, most of a cell's arithmetic, advance every
+  trajectory of the chunk one step at a time: per trajectory column the state, its error
+  coordinates, the change and that step's noise, ~600 B, so ~60 kB per seed at 100 test
+  trajectories, and a chunk of 12 seeds (~0.7 MB) stays inside this machine's 2 MB L2 where
+  one of 40 (~2.4 MB) does not. Measured on the hover DAgger cell (100 test trajectories, one
+  step after compilation, sizes interleaved in one process, best of 6-8, 2-core machine): per
+  seed 0.86x at 10 seeds, 0.90x at 15, 1.00 at 20 and 30, 1.04x at 40, 1.10x at 80 and 1.25x
+  at 200 seeds. A constant, not derived from the family: the working set per seed is the same
+  for the funnel (same state, same test count), and the finite-MDP cells' per-seed data (MB)
+  is out of cache at any chunk size. The cost of more chunks is a Python call per chunk and
+  iteration (~1 ms against ~100 ms of work) and their files. The memory estimate is made at
+  the capped chunk's size, so its compilation is the one the run reuses.
 - **Same numbers.** Each seed's computation is its own under ``vmap`` (its keys come from its
-  seed alone), and the one reduction whose XLA lowering changed with the batch size (the model's
-  squared error over a state's components) is written in a fixed order
-  (:func:`loopid.models.linear_offset.sum_last`). Batches of one or two seeds are lowered
-  differently again (measured: a seed's rows then differ in the last bits, which a diverging
-  test trajectory amplifies), so every program runs at least :data:`MIN_CHUNK` seeds, padding
-  if it must (:func:`loopid.algorithms.loop.at_least`, so a direct ``family.run`` of two seeds
-  gives the same numbers as a run directory's cell). With both, a seed's rows were bit for bit
-  the same whatever chunk it ran in on hover, hover-delay and the funnel at chunks of 3-6
-  against one chunk of 7-13 (10 test trajectories). **Not yet everywhere:** hover with 100 test
-  trajectories, chunks of 14 against one of 40, gives the same models, policies and losses but
-  1-ulp differences in 9 of 120 test-cost means and medians (the test rollouts' cost sums still
-  depend on the batch width; open, ``tests/experiments/test_chunks.py``).
+  seed alone), but XLA's CPU backend picks a reduction's loop from the whole shape, so a sum's
+  order, and its last bit, can change with the number of seeds beside it. Every reduction whose
+  lowering was measured to do so is written in a fixed order: the model's squared error over a
+  state's components (:func:`loopid.models.linear_offset.sum_last`); the test cost's sums over
+  the 21 error coordinates of the ``[21, S·n_test]`` column batch (``jnp.sum`` gave 9 of 120
+  hover test costs 1 ulp apart between chunks of 14 and one of 40), the mean over the test
+  trajectories and the masked loss mean (``jnp.mean``/``jnp.sum`` over 100 entries changed from
+  S = 41 seeds on), all by :func:`loopid.algorithms.plant.ordered_sum`. Batches of one or two
+  seeds are lowered differently again (measured: a seed's rows then differ in the last bits,
+  which a diverging test trajectory amplifies), so every program runs at least
+  :data:`MIN_CHUNK` seeds, padding if it must (:func:`loopid.algorithms.loop.at_least`, so a
+  direct ``family.run`` of two seeds gives the same numbers as a run directory's cell). Checked
+  bit for bit, every Row field and final array: hover DAgger 14 against 40 and 64 seeds
+  (100 test trajectories), hover-delay 3 against 50 (also ``delay_mode="latency"``), the funnel
+  3 against 45, the ``best`` and ``mixture`` test policies, the expert; and the issue's
+  ``--memory 0.1`` against ``--memory 16`` (``tests/experiments/test_chunks.py``). **Not** the
+  policy-gradient baseline (``pg``): its own reductions (in
+  :mod:`loopid.algorithms.policy_gradient`) still change its gains with the seed count (3
+  against 50 seeds), before and after this change.
 
 Chunk files: ``cells/S__M.chunks/I-J.parquet`` (rows of the seeds at positions I..J−1 of the
 run's seed list) and ``I-J.npz`` (their final arrays), written atomically, arrays first. A killed
@@ -59,6 +81,9 @@ DEFAULT_FRACTION = 0.6
 PROCESS_BYTES = 1.5e9
 
 GB = 1e9
+#: The most seeds a chunk holds, for speed (module docstring: the per-seed cost is lowest at
+#: 10-15 seeds and grows above, 1.25x at 200).
+SPEED_SEEDS = 12
 #: The fewest seeds a chunk holds (:data:`loopid.algorithms.loop.MIN_SEEDS`: smaller batches are
 #: lowered differently).
 MIN_CHUNK = MIN_SEEDS

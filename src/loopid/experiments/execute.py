@@ -294,12 +294,17 @@ def _first(final: dict, count: int) -> dict:
 
 def _plan(rd: RunDir, todo, seeds: np.ndarray, family: Family, limit: int, executor_name, options):
     """The tasks of the unfinished cells: each cell's missing seeds in chunks that fit ``limit``
-    bytes; a cell that fits whole is one chunk (and is saved as a cell, with no chunk files)."""
+    bytes and, for families with a memory estimate, hold at most
+    :data:`loopid.experiments.chunks.SPEED_SEEDS`; a cell that is one chunk is saved as a cell,
+    with no chunk files."""
     missing = {(s.name, m): chunks.ChunkFiles(rd.cells, s.name, m).missing(len(seeds))
                for s, m in todo}  # fmt: skip
     least = chunks.MIN_CHUNK if family.memory else 1  # chunked families: one lowering a seed
-    whole = {key: chunks.split(seeds, left, len(left), least) for key, left in missing.items()}
-    estimates = [Job(s, m, whole[s.name, m][0].seeds) for s, m in todo if family.memory]
+    # chunked families: at most SPEED_SEEDS a chunk, and the estimate compiles that chunk's shape
+    most = chunks.SPEED_SEEDS if family.memory else len(seeds)
+    first = {key: chunks.split(seeds, left, min(len(left), most), least)
+             for key, left in missing.items()}  # fmt: skip
+    estimates = [Job(s, m, first[s.name, m][0].seeds) for s, m in todo if family.memory]
     sizes = {}
     for job, nbytes in executor(executor_name)(estimates, estimate_memory, **options):
         where = f"{job.scenario.name} / {job.method}"
