@@ -22,7 +22,7 @@ from loopid.experiments.families import gym
 from loopid.systems import pendulum
 
 matplotlib.use("Agg")
-import matplotlib.pyplot as plt  # noqa: E402
+import matplotlib.pyplot as plt
 
 CONFIG = Path(__file__).with_name("pendulum_swingup.toml")
 
@@ -64,8 +64,9 @@ def main() -> None:
             ax.plot(it, mean, style, color=color, marker="o", ms=3, label=f"{method}, {label}")
             ax.fill_between(it, mean - se, mean + se, color=color, alpha=0.15)
     ax.axhline(ref, color="k", ls=":", lw=1.2, label=f"true-model iLQR ({ref:.0f})")
+    title = f"Pendulum-v1 swing-up from hanging, {args.seeds} seeds (mean ± s.e.)"
     ax.set(xlabel="iteration (400 transitions each)", ylabel="test cost (Pendulum's own)",
-           title=f"Pendulum-v1 swing-up from hanging, {args.seeds} seeds (mean ± s.e.)")  # fmt: skip
+           title=title)  # fmt: skip
     ax.set_yscale("log")
     ax.legend(fontsize=8)
     fig.tight_layout()
