@@ -151,7 +151,7 @@ def test_a_reloaded_gym_controller_gives_the_recorded_costs_exactly(tmp_path):
     table = run_cells(tmp_path, [s], ["dagger"])
     system = gym.make_system(s)
     try:
-        _, _, _, test_cost = gym._parts(s, system)
+        _, _, test_cost = gym._parts(s, system)
         for seed, recorded in final_costs(table, "dagger").items():
             saved = loopid.load(tmp_path, "gym", "dagger", seed)
             costs, _ = test_episodes(system, saved.controller.K[None], [seed], 3, test_cost,
