@@ -123,8 +123,9 @@ from loopid.algorithms.loop import (
     eval_noise,
     iteration_key,
     seed_keys,
+    trajectory_mean,
 )
-from loopid.algorithms.plant import Plant
+from loopid.algorithms.plant import Plant, ordered_sum
 
 
 class PGState(NamedTuple):
@@ -287,7 +288,7 @@ def make_pg_step(
         k_noise, k_eps = jax.random.split(key)
         w = plant.dynamics.noise_sequence(k_noise, H, std)
         log_ref, dxs = rollout(state.theta, w)
-        rms = jnp.sqrt(jnp.mean(dxs**2, axis=0))
+        rms = jnp.sqrt(ordered_sum(dxs**2, axis=0) / H)  # fixed order: chunk-invariant
         scale = jnp.where(jnp.isfinite(rms), jnp.maximum(rms, floor), floor)
         e = (sigma / np.sqrt(d)) * jax.random.normal(k_eps, (P, m, n), jnp.float64) * free
         delta = e / scale
@@ -295,7 +296,7 @@ def make_pg_step(
         state = remember(state, delta, log_probe - log_ref)
         rows = jnp.where(state.filled[:, None, None], state.probes * scale, 0.0)
         g = fd_gradient(rows, jnp.where(state.filled, state.diffs, 0.0)) * free  # exact zeros
-        norm = jnp.linalg.norm(g)
+        norm = jnp.sqrt(ordered_sum((g * g).reshape(-1)))
         usable = jnp.isfinite(norm) & (norm > 0)
         direction = jnp.where(usable, g / jnp.where(usable, norm, 1.0), 0.0)
         step_ = -state.radius * direction / scale
@@ -359,7 +360,7 @@ def run_policy_gradient(
         zero = jnp.zeros(S)
         count = jnp.full(S, used, jnp.int32)  # every sample is of the (perturbed) policy
         return Row(
-            test_cost=jnp.mean(costs, axis=1), test_cost_median=jnp.median(costs, axis=1),
+            test_cost=trajectory_mean(costs), test_cost_median=jnp.median(costs, axis=1),
             diverged=jnp.sum(div, axis=1), loss_nu=zero, loss_policy=zero, online_loss=zero,
             policy_samples=count, valid_samples=count, solver_converged=jnp.full(S, info.converged),
             spectral_radius=jnp.full(S, info.spectral_radius), extra={},
