@@ -11,7 +11,7 @@ import textwrap
 import numpy as np
 import pytest
 
-from loopid.experiments import chunks
+from loopid.experiments import artifacts, chunks
 from loopid.experiments.config import seeds_from_value, seeds_value
 from loopid.experiments.execute import run_cells
 from loopid.experiments.families import helicopter
@@ -59,6 +59,34 @@ def test_plan_caps_chunks_for_speed_and_estimates_at_the_capped_size(tmp_path, m
     jobs = execute._plan(RunDir(tmp_path), [(s, "dagger-t")], np.arange(30), family, 6000,
                          "local", {"workers": 1})  # fmt: skip
     assert [len(job.seeds) for job in jobs] == [6] * 5
+
+
+def test_stacked_arrays_are_saved_as_their_join_one_piece_at_a_time(tmp_path):
+    """A chunked cell's arrays are written piece by piece (artifacts.Stacked): ``np.load`` reads
+    back exactly the joined array, with the dtype, beside ordinary arrays; the pieces are read
+    only while writing; pieces that do not stack into the stated shape are refused."""
+    rng = np.random.default_rng(0)
+    parts = [rng.normal(size=(k, 4, 3)) for k in (3, 3, 2)]
+    read = []
+
+    def pieces():
+        for i, p in enumerate(parts):
+            read.append(i)
+            yield p
+
+    stacked = artifacts.Stacked((8, 4, 3), np.dtype(np.float64), pieces)
+    assert read == []
+    artifacts.save_npz(tmp_path / "a.npz", {"seeds": np.arange(8), "K": stacked, "x": parts[0]})
+    assert read == [0, 1, 2]
+    with np.load(tmp_path / "a.npz", allow_pickle=False) as data:
+        assert data.files == ["seeds", "K", "x"]
+        assert np.array_equal(data["K"], np.concatenate(parts)) and data["K"].dtype == np.float64
+        assert np.array_equal(data["x"], parts[0]) and np.array_equal(data["seeds"], np.arange(8))
+    for shape in [(9, 4, 3), (8, 4, 2)]:
+        with pytest.raises(ValueError, match=r"stack|rows"):
+            artifacts.save_npz(
+                tmp_path / "b.npz", {"K": artifacts.Stacked(shape, np.float64, lambda: iter(parts))}
+            )
 
 
 def test_chunk_size_is_the_most_seeds_that_fit_and_refuses_in_one_line():

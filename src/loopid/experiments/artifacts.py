@@ -16,20 +16,68 @@ Each finished cell of a run directory has, beside its rows (``cells/S__M.parquet
 
 Format: NumPy's ``.npz`` (uncompressed), which stores float64 exactly, needs no dependency
 beyond NumPy and is read by any NumPy (``np.load``); safetensors would add a dependency and
-gain nothing for a handful of dense arrays. Both files are written through a temporary name and
-a rename before the cell's Parquet file, so a finished cell always has its artifacts and a
-killed run leaves no half-written one. A file that is missing or unreadable raises one line
-naming it (:func:`read`).
+gain nothing for a handful of dense arrays. A chunked cell's arrays are written from their
+chunks' files one piece at a time (:class:`Stacked`), so that the cell's seeds are never all in
+memory at once: the npz member is an ``.npy`` header for the whole ``[S, ...]`` shape followed
+by each piece's bytes, which is what ``np.savez`` writes for the joined array. Both files are
+written through a temporary name and a rename before the cell's Parquet file, so a finished
+cell always has its artifacts and a killed run leaves no half-written one. A file that is
+missing or unreadable raises one line naming it (:func:`read`).
 """
 
 import json
 import os
+import zipfile
+from collections.abc import Callable, Iterator
 from pathlib import Path
+from typing import NamedTuple
 
 import numpy as np
 
 #: The artifact format's version, in every ``.json``.
 FORMAT = 1
+
+
+class Stacked(NamedTuple):
+    """An ``[S, ...]`` array kept as its pieces along the first axis (a chunked cell's chunk
+    files): ``shape`` and ``dtype`` of the whole, and ``pieces()`` yielding the pieces in order,
+    each loaded only when it is written."""
+
+    shape: tuple
+    dtype: np.dtype
+    pieces: Callable[[], Iterator[np.ndarray]]
+
+
+def _write_member(f, array) -> None:
+    """One ``.npy`` member: ``np.lib.format.write_array`` for an array; for a :class:`Stacked`,
+    the whole shape's header, then each piece's C-order bytes (checked against the header)."""
+    if not isinstance(array, Stacked):
+        np.lib.format.write_array(f, np.asarray(array), allow_pickle=False)
+        return
+    header = {
+        "descr": np.lib.format.dtype_to_descr(np.dtype(array.dtype)),
+        "fortran_order": False,
+        "shape": tuple(array.shape),
+    }
+    np.lib.format.write_array_header_2_0(f, header)
+    rows = 0
+    for piece in array.pieces():
+        piece = np.ascontiguousarray(piece, dtype=array.dtype)
+        if piece.shape[1:] != tuple(array.shape[1:]):
+            raise ValueError(f"a piece of shape {piece.shape} does not stack into {array.shape}")
+        f.write(piece.tobytes())
+        rows += piece.shape[0]
+    if rows != array.shape[0]:
+        raise ValueError(f"the pieces hold {rows} rows, not the {array.shape[0]} of {array.shape}")
+
+
+def save_npz(path, arrays: dict) -> None:
+    """``np.savez(path, **arrays)`` (uncompressed, no pickles) where an array may be a
+    :class:`Stacked`, written piece by piece (module docstring); ``np.load`` reads it back."""
+    with zipfile.ZipFile(path, "w", zipfile.ZIP_STORED, allowZip64=True) as zf:
+        for name, array in arrays.items():
+            with zf.open(f"{name}.npy", "w", force_zip64=True) as f:
+                _write_member(f, array)
 
 
 def paths(cells: Path, scenario: str, method: str) -> tuple[Path, Path]:
@@ -57,7 +105,7 @@ def write(
     """Write one cell's artifacts (module docstring); ``final``: ``{name: [S, ...] array}``;
     ``config``: the scenario's ``to_dict()``; ``shared``: ``{name: array}`` of every seed."""
     seeds = np.asarray(seeds, dtype=np.int64)
-    arrays = {name: np.asarray(v) for name, v in final.items()}
+    arrays = {name: v if isinstance(v, Stacked) else np.asarray(v) for name, v in final.items()}
     for name, v in arrays.items():
         if v.shape[:1] != seeds.shape:
             raise ValueError(f"artifact {name!r} has shape {v.shape}, not [{seeds.size}, ...]")
@@ -65,11 +113,7 @@ def write(
     arrays_and_common = {**arrays, **common}
     npz, meta = paths(cells, scenario, method)
 
-    def save_npz(tmp: Path) -> None:
-        with open(tmp, "wb") as f:
-            np.savez(f, seeds=seeds, **arrays_and_common)
-
-    _replace(save_npz, npz)
+    _replace(lambda tmp: save_npz(tmp, {"seeds": seeds, **arrays_and_common}), npz)
     info = {
         "format": FORMAT,
         "family": family,
