@@ -20,8 +20,13 @@ $(VENV)/.installed-test: pyproject.toml | $(PY)
 reproduce: $(VENV)/.installed-run
 	$(VENV)/bin/loopid reproduce --out runs
 
+# The suite runs in TEST_WORKERS processes (pytest-xdist), each test file whole in one of them
+# (its module fixtures computed once), the slowest files first (tests/conftest.py);
+# TEST_WORKERS=0 runs it in this process.
+TEST_WORKERS ?= 2
+
 test: $(VENV)/.installed-test
-	$(PY) -m pytest
+	$(PY) -m pytest -n $(TEST_WORKERS) --dist loadfile --no-loadscope-reorder
 
 lint: $(VENV)/.installed-test
 	$(VENV)/bin/ruff check .

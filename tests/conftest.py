@@ -25,6 +25,26 @@ def tree_allclose(a, b, *, rtol=1e-10, atol=1e-12) -> bool:
     return all(np.allclose(np.asarray(x), np.asarray(y), rtol=rtol, atol=atol) for x, y in pairs)
 
 
+#: The test files that take longest (measured, most first): collected first, so that a parallel
+#: run (``make test``: pytest-xdist, a whole file per worker, in collection order) starts them at
+#: once instead of ending on one of them while the other workers idle.
+SLOWEST_FILES = (
+    "test_cli.py",  # reproduce --quick and study --quick
+    "test_cli_executors.py",  # a killed run, worker processes, Ray
+    "test_chunks.py",
+    "test_nonlinear.py",
+    "test_family_gym.py",
+    "test_saved.py",
+)
+
+
+def pytest_collection_modifyitems(items):
+    """Put the files of :data:`SLOWEST_FILES` first, in that order (a stable sort: every file's
+    own tests, and every other file, keep their order)."""
+    rank = {name: i for i, name in enumerate(SLOWEST_FILES)}
+    items.sort(key=lambda item: rank.get(item.path.name, len(rank)))
+
+
 @pytest.fixture
 def rng():
     """A NumPy generator with a fixed seed, for test data."""
@@ -45,6 +65,12 @@ def cli(*args, cache: Path, **popen):
     if popen:
         return subprocess.Popen(command, env=env, **popen)
     return subprocess.run(command, capture_output=True, text=True, env=env, timeout=900)
+
+
+def cell_mtimes(out: Path) -> dict[str, int]:
+    """The finished cells of the run directory ``out``: ``{file name: mtime in ns}`` of its
+    ``cells/*.parquet``."""
+    return {p.name: p.stat().st_mtime_ns for p in (out / "cells").glob("*.parquet")}
 
 
 @pytest.fixture(scope="session")

@@ -4,9 +4,6 @@ The slow tests share one JAX compilation cache (``cache``), so only the first co
 """
 
 import re
-import signal
-import subprocess
-import time
 from pathlib import Path
 
 import numpy as np
@@ -14,7 +11,7 @@ import pyarrow.parquet as pq
 import pytest
 
 import loopid
-from conftest import cli
+from conftest import cell_mtimes, cli
 from loopid.algorithms.methods import METHODS
 from loopid.cli import main
 from loopid.experiments.results import SCHEMA
@@ -174,94 +171,16 @@ def test_reproduce_quick_writes_the_four_files(quick):
     assert "Wall time" in report and "this command:" in report
 
 
-def _cell_mtimes(out: Path) -> dict[str, int]:
-    return {p.name: p.stat().st_mtime_ns for p in (out / "cells").glob("*.parquet")}
-
-
-@pytest.mark.slow
-def test_killed_run_resumes_to_the_same_table(tmp_path, cache, quick):
-    args = ["run", "hover", "--methods", "expert,batch-t,dagger-t", "--seeds", "2",
-            "--iterations", "4", "--test-trajectories", "10", "--quiet"]  # fmt: skip
-    whole = tmp_path / "whole"
-    r = cli(*args, "--out", whole, cache=cache)
-    assert r.returncode == 0, r.stderr
-    expected = pq.read_table(whole / "results.parquet")
-
-    killed = tmp_path / "killed"
-    p = cli(*args, "--out", killed, cache=cache, stderr=subprocess.DEVNULL)
-    deadline = time.monotonic() + 300
-    while not _cell_mtimes(killed) and p.poll() is None and time.monotonic() < deadline:
-        time.sleep(0.05)
-    p.send_signal(signal.SIGKILL)
-    p.wait()
-    first = _cell_mtimes(killed)
-    assert len(first) == 1  # killed after its first finished cell
-    assert not list(killed.glob("*.png"))
-
-    r = cli(*args, "--out", killed, cache=cache)
-    assert r.returncode == 0, r.stderr
-    assert "already finished, skipped" not in r.stderr  # --quiet
-    again = pq.read_table(killed / "results.parquet")
-    assert again.equals(expected)  # same rows, same order, no duplicates
-    name = next(iter(first))
-    assert _cell_mtimes(killed)[name] == first[name]  # the finished cell was not recomputed
-
-    # a different configuration in the same directory is refused, and changes nothing
-    r = cli(*args[:-1], "--samples", "50", "--out", killed, cache=cache)
-    assert r.returncode == 2 and "different configuration" in r.stderr
-    assert pq.read_table(killed / "results.parquet").equals(expected)
-
-
-@pytest.mark.slow
-def test_worker_processes_give_the_in_process_table(tmp_path, cache, quick):
-    args = ["run", "hover", "--methods", "expert,batch-t", "--seeds", "2", "--iterations", "2",
-            "--test-trajectories", "10", "--quiet"]  # fmt: skip
-    r = cli(*args, "--workers", "1", "--out", tmp_path / "one", cache=cache)
-    assert r.returncode == 0, r.stderr
-    r = cli(*args, "--workers", "2", "--out", tmp_path / "two", cache=cache)
-    assert r.returncode == 0, r.stderr
-    one = pq.read_table(tmp_path / "one" / "results.parquet")
-    assert pq.read_table(tmp_path / "two" / "results.parquet").equals(one)
-
-
-@pytest.mark.slow
-def test_ray_executor_gives_the_local_table(tmp_path, cache, quick):
-    pytest.importorskip("ray")
-    args = ["run", "hover", "--methods", "expert,batch-t", "--seeds", "2", "--iterations", "2",
-            "--test-trajectories", "10", "--quiet"]  # fmt: skip
-    r = cli(*args, "--out", tmp_path / "local", cache=cache)
-    assert r.returncode == 0, r.stderr
-    r = cli(*args, "--executor", "ray", "--out", tmp_path / "ray", cache=cache)
-    assert r.returncode == 0, r.stderr
-    local = pq.read_table(tmp_path / "local" / "results.parquet")
-    assert pq.read_table(tmp_path / "ray" / "results.parquet").equals(local)
-    assert (tmp_path / "ray" / "report.md").exists()
-
-
-@pytest.mark.slow
-def test_ray_executor_gives_the_local_table_for_an_mdp(tmp_path, cache):
-    pytest.importorskip("ray")
-    args = ["run", "mdp-trap", "--seeds", "2", "--iterations", "3", "--quiet"]
-    r = cli(*args, "--workers", "1", "--out", tmp_path / "local", cache=cache)
-    assert r.returncode == 0, r.stderr
-    r = cli(*args, "--executor", "ray", "--out", tmp_path / "ray", cache=cache)
-    assert r.returncode == 0, r.stderr
-    local = pq.read_table(tmp_path / "local" / "results.parquet")
-    assert local.num_rows == 3 * 2 * 3
-    assert pq.read_table(tmp_path / "ray" / "results.parquet").equals(local)
-    assert "j_best ≤ bound" in (tmp_path / "ray" / "report.md").read_text()
-
-
 @pytest.mark.slow
 def test_study_quick_writes_every_file_and_covers_every_reading(tmp_path, cache, quick):
     """``loopid study --quick``, sharing the default reading's cells with a reproduce run."""
     from loopid.experiments.study import FIGURES, READING_FIELDS, READINGS
 
-    before = _cell_mtimes(quick)
+    before = cell_mtimes(quick)
     out = tmp_path / "study"
     r = cli("study", "--quick", "--quiet", "--out", out, "--reproduce", quick, cache=cache)
     assert r.returncode == 0, r.stderr
-    assert _cell_mtimes(quick) == before  # the reproduce run's cells were reused, not redone
+    assert cell_mtimes(quick) == before  # the reproduce run's cells were reused, not redone
     names = {p.name for p in out.iterdir()}
     files = {"study.md", "study.parquet", "results.parquet", "config.toml"}
     assert {*files, *(f"study_{f}.png" for f in FIGURES)} <= names
