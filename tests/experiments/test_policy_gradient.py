@@ -95,21 +95,27 @@ def test_trim_holding_base_flies_pi1s_test_trajectories():
     assert same is K1 and np.all(everywhere == 1)
 
 
+def _pg_step(s, hold: bool):
+    """The scenario's free mask, one seed's pg iteration (from π_1's base or the trim-holding
+    one) and its probe count P."""
+    st = setup(s)
+    agent = agent_of(s)
+    K1, _ = agent.policy(agent.init())
+    base, free = pg_base(st.plant, K1, hold=hold)
+    one = make_pg_step(
+        st.plant, base, free, samples=s.samples, horizon=s.pg_horizon, sigma=s.pg_sigma,
+        nu_state_var=s.nu_state_var, cost_cap=s.cost_cap,
+    )  # fmt: skip
+    return free, one, budget(s.samples, s.pg_horizon, st.plant.horizon)[1]
+
+
 @pytest.mark.slow
 def test_conservative_step_never_accepts_a_worse_estimate():
     """Over many iterations and seeds, a step is taken only when the candidate's log cost on the
     shared noise is below the reference's; otherwise θ stays put and ρ halves; ρ never grows;
     every rollout enters the memory (P probes and the candidate per iteration)."""
     s = SCENARIO
-    st = setup(s)
-    agent = agent_of(s)
-    K1, _ = agent.policy(agent.init())
-    base, free = pg_base(st.plant, K1, hold=True)
-    one = make_pg_step(
-        st.plant, base, free, samples=s.samples, horizon=s.pg_horizon, sigma=s.pg_sigma,
-        nu_state_var=s.nu_state_var, cost_cap=s.cost_cap,
-    )  # fmt: skip
-    _, P = budget(s.samples, s.pg_horizon, 400)
+    free, one, P = _pg_step(s, hold=True)
     step = jax.jit(jax.vmap(one))
     S = 8
     init = init_state(free, 4 * s.pg_step * s.pg_sigma * 2.0)
@@ -143,15 +149,7 @@ def test_pg_step_is_the_same_for_a_seed_in_any_batch():
     the coordinates' RMS (and ``jnp.linalg.norm`` for ‖g‖) 548 of the 840 θ entries differed
     (measured); the fixed-order sums of :func:`loopid.algorithms.plant.ordered_sum` fix that."""
     s = scenario("funnel", seeds=20, test_trajectories=4)
-    st = setup(s)
-    agent = agent_of(s)
-    K1, _ = agent.policy(agent.init())
-    base, free = pg_base(st.plant, K1, hold=False)
-    one = make_pg_step(
-        st.plant, base, free, samples=s.samples, horizon=s.pg_horizon, sigma=s.pg_sigma,
-        nu_state_var=s.nu_state_var, cost_cap=s.cost_cap,
-    )  # fmt: skip
-    _, P = budget(s.samples, s.pg_horizon, st.plant.horizon)
+    free, one, P = _pg_step(s, hold=False)
     init = init_state(free, s.pg_step * s.pg_sigma * 2.0, probes=P)
     keys = jax.random.split(jax.random.key(0), 20)
 
