@@ -1,7 +1,7 @@
 """The README's swing-up figure: DAgger and Batch with the feature model against the linear model
 on Pendulum-v1 started hanging down, and the true-model iLQR as the reference line.
 
-    python examples/pendulum_swingup.py [--seeds 5] [--out docs/pendulum_swingup.png]
+    python examples/pendulum_swingup.py [--seeds 16] [--out docs/pendulum_swingup.png]
 
 Every run is ``examples/pendulum_swingup.toml`` (a degree-3 polynomial feature model, FTRL,
 iLQR seeded by an MPC episode on the learned model); the linear runs set ``[model] kind =
@@ -45,7 +45,7 @@ def reference_cost(s: gym.GymScenario) -> float:
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--seeds", type=int, default=5)
+    ap.add_argument("--seeds", type=int, default=16)
     ap.add_argument("--out", default="docs/pendulum_swingup.png")
     args = ap.parse_args()
     fields, _ = gym.read_file(CONFIG)
