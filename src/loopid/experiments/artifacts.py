@@ -18,11 +18,11 @@ Format: NumPy's ``.npz`` (uncompressed), which stores float64 exactly, needs no 
 beyond NumPy and is read by any NumPy (``np.load``); safetensors would add a dependency and
 gain nothing for a handful of dense arrays. A chunked cell's arrays are written from their
 chunks' files one piece at a time (:class:`Stacked`), so that the cell's seeds are never all in
-memory at once: the npz member is an ``.npy`` header for the whole ``[S, ...]`` shape followed
-by each piece's bytes, which is what ``np.savez`` writes for the joined array. Both files are
-written through a temporary name and a rename before the cell's Parquet file, so a finished
-cell always has its artifacts and a killed run leaves no half-written one. A file that is
-missing or unreadable raises one line naming it (:func:`read`).
+memory at once: the npz member is an ``.npy`` header (format 2.0) for the whole ``[S, ...]``
+shape followed by each piece's bytes, the joined array's bytes in ``np.savez``'s layout. Both
+files are written through a temporary name and a rename before the cell's Parquet file, so a
+finished cell always has its artifacts and a killed run leaves no half-written one. A file that
+is missing or unreadable raises one line naming it (:func:`read`).
 """
 
 import json
