@@ -143,7 +143,8 @@ def test_the_mlp_learns_online_and_its_plan_beats_the_first_policy():
         ({"planner_kind": "ilqr", "planner_horizon": 601}, "planner_horizon"),
         ({"planner_kind": "ilqr", "planner_horizon": 5, "planner_every": 6}, "planner_every"),
         ({"model_kind": "features"}, "planner_kind 'lqr'"),
-        ({"planner_kind": "mpc"}, "mpc"),
+        ({"planner_kind": "mpc", "test_policy": "best"}, "test_policy"),
+        ({"planner_kind": "mpc", "task": "hover-delay", "delay_mode": "latency"}, "latency"),
         ({"planner_alternatives": [2.0]}, "planner_alternatives"),
     ],
 )

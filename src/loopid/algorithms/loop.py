@@ -294,12 +294,15 @@ def drive(
     return carry, rows
 
 
-def _evaluate(plant: LoopPlant, carry: _Carry, K, keys, noise: EvalNoise, n, test_policy: str):
-    """Test every seed's policy ``K [S, horizon, m, n]``; returns (costs [S, n_test], diverged
+def _evaluate(
+    plant: LoopPlant, carry: _Carry, K, keys, noise: EvalNoise, n, test_policy: str, flown=None
+):
+    """Test every seed's policy ``K [S, horizon, m, n]`` (``flown``: what the plant flies in its
+    place, a controller's policies of every seed); returns (costs [S, n_test], diverged
     [S, n_test], new carry)."""
     carry = carry._replace(K=K)
     if test_policy == "last":
-        costs, div = plant.eval_seeds(K, noise.test)
+        costs, div = plant.eval_seeds(K if flown is None else flown, noise.test)
     elif test_policy == "best":
         score = trajectory_mean(plant.eval_seeds(K, noise.select)[0])
         better = score < carry.best_cost
@@ -330,6 +333,7 @@ def make_cell(
     gamma: float = 0.99,
     test_policy: str = "last",
     diagnostics: Diagnostics | None = None,
+    controller: Callable[[Any, jax.Array], Any] | None = None,
 ):
     """Build the :class:`Cell` ``(start, step, noise)``, jitted, over all seeds at once.
 
@@ -342,9 +346,19 @@ def make_cell(
     fraction ``p``; ``noise`` is :func:`eval_noise` of the same keys. ``nu`` may be a list of
     samplers, of which ``which`` (traced, so one compiled program serves them all: ν_t, ν_e and
     ν_en, with DAgger, Batch and Abbeel) picks the one to draw from.
+
+    ``controller(learner_state, K) -> policy`` (one seed; vmapped here): what ``plant`` flies in
+    place of the gains ``K``, in the policy's training rollouts and its tests, e.g. the seed's
+    model parameters for a model-predictive controller (:mod:`loopid.algorithms.mpc_plant`).
+    ``K`` is still what the cell keeps and saves. Only ``test_policy = "last"`` (the best and
+    the mixture keep gains). Default: the plant flies ``K``.
     """
     if test_policy not in TEST_POLICIES:
         raise ValueError(f"test_policy must be one of {TEST_POLICIES}, got {test_policy!r}")
+    if controller is not None and test_policy != "last":
+        raise ValueError(
+            f"a controller flies the last policy only, got test_policy {test_policy!r}"
+        )
     hist_len = iterations if test_policy == "mixture" else 1
     nus = [nu] if callable(nu) else list(nu or [])
 
@@ -365,7 +379,8 @@ def make_cell(
                 lambda d, s, k: diagnostics.update(d, s, k, p, n), carry.diag, carry.learner, K
             )
             carry = carry._replace(diag=diag)
-        costs, div, carry = _evaluate(plant, carry, K, keys, noise, n, test_policy)
+        flown = None if controller is None else jax.vmap(controller)(carry.learner, K)
+        costs, div, carry = _evaluate(plant, carry, K, keys, noise, n, test_policy, flown)
         stats = (trajectory_mean(costs), jnp.median(costs, axis=1), jnp.sum(div, axis=1))
         return carry, (*stats, info, extra)
 
@@ -394,7 +409,8 @@ def make_cell(
 
     def learn(carry: _Carry, key, n, p, which):
         keys = iteration_keys(key, n)
-        from_pol = policy_samples(plant, carry.K, keys.policy, samples, mode=mode, gamma=gamma)
+        policy = carry.K if controller is None else controller(carry.learner, carry.K)
+        from_pol = policy_samples(plant, policy, keys.policy, samples, mode=mode, gamma=gamma)
         from_nu = draw_nu(which, keys.nu, from_pol)
         learner, loss_sum, stats = learning_step(
             agent, carry.learner, carry.loss_sum, from_pol, from_nu, keys.mix, n, p, samples

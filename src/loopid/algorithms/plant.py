@@ -160,6 +160,8 @@ class Plant(NamedTuple):
     dynamics: Dynamics
     delay_mode: str = "fifo"
     nu_pending: str = "hold"
+    stop_norm: float = 5.0
+    cost_cap: float = 1e8
 
     def eval_noise(self, key: jax.Array, n_test: int) -> jax.Array:
         """Process noise ``[n_test, horizon, n_noise]`` of ``n_test`` test trajectories."""
@@ -219,7 +221,7 @@ def make_plant(
     no_fifo = jnp.zeros((0, m), dtype=jnp.float64)
     # what the controller remembers between steps: commands (fifo) or observations (latency)
     memory0 = jnp.zeros((d, n), dtype=jnp.float64) if latency else fifo0
-    quad_Q, quad_R = _quadratic_form(task.Q), _quadratic_form(task.R)
+    quad_Q, quad_R = quadratic_form(task.Q), quadratic_form(task.R)
     if dynamics.columns:
         step_columns, error_columns = step_delayed, to_error
     else:  # vmap over the trailing batch axis of column batches
@@ -347,7 +349,7 @@ def make_plant(
 
     return Plant(
         task, horizon, n, m, rollout, query, eval_one, eval_seeds, std, dynamics, delay_mode,
-        nu_pending,
+        nu_pending, float(stop_norm), float(cost_cap),
     )  # fmt: skip
 
 
@@ -392,7 +394,7 @@ def ordered_sum(x, axis: int = 0) -> jax.Array:
 
     Speed: an axis of at most :data:`_UNROLL` (a longer one first halved as whole arrays down to
     it) is unrolled into row slices (:func:`halving_sum`); elementwise adds of slices fuse into
-    one loop. The test rollouts' cost (:func:`_quadratic_form`) builds its terms one by one and
+    one loop. The test rollouts' cost (:func:`quadratic_form`) builds its terms one by one and
     sums them with :func:`halving_sum`: ``eval_seeds`` then takes 0.95x the time it took with
     ``jnp.sum``, where halving whole arrays (slices and a concatenation per level) took 1.1x and
     ``ordered_sum`` of the ``[21, b]`` product array 1.2x (hover-delay, 20 seeds x 100
@@ -422,7 +424,7 @@ def halving_sum(terms: list) -> jax.Array:
     return terms[0]
 
 
-def _quadratic_form(M) -> Callable[[jax.Array], jax.Array]:
+def quadratic_form(M) -> Callable[[jax.Array], jax.Array]:
     """``v ↦ vᵀ M v`` over the leading axis of ``v [k, *B]`` (-> ``[*B]``); a diagonal ``M`` (the
     usual cost weights, checked here on the concrete matrix) costs k products instead of k².
 

@@ -16,7 +16,8 @@ never NaN.
 - :func:`ilqr` -> :class:`ILQRSolution` (the funnel expert on the true simulator)
 - :func:`plan` (iLQR on a learned model whose parameters are traced), :func:`as_gains` (its
   policy as the loop's gains ``K [T, m, n]``), :func:`mpc_rollout` / :class:`MPCController`
-  (receding-horizon iLQR in JAX and for Gymnasium envs), :class:`Penalized`,
+  (receding-horizon iLQR in JAX and for Gymnasium envs), :func:`replanner` (its re-planning step
+  for controllers inside a compiled loop), :class:`Penalized`,
   :func:`quadratic_cost`, :func:`action_penalty`: the planner of nonlinear models (issue 19;
   :mod:`loopid.control.plan`, :mod:`loopid.control.mpc`)
 - :func:`rollout`, :func:`linear_rollout`, :func:`tracking_rollout` -> trajectories
@@ -26,7 +27,13 @@ never NaN.
 
 from loopid.control.ilqr import ILQRSolution, Quadratization, ilqr, quadratize, trajectory_cost
 from loopid.control.lqr import LQRSolution, dlqr, dlqr_affine
-from loopid.control.mpc import MPCController, MPCRollout, mpc_rollout
+from loopid.control.mpc import (
+    MPCController,
+    MPCRollout,
+    Replanner,
+    mpc_rollout,
+    replanner,
+)
 from loopid.control.plan import (
     Penalized,
     QuadraticCost,
@@ -57,6 +64,7 @@ __all__ = [
     "Penalized",
     "QuadraticCost",
     "Quadratization",
+    "Replanner",
     "Rollout",
     "TVLQRSolution",
     "VIResult",
@@ -75,6 +83,7 @@ __all__ = [
     "q_values",
     "quadratic_cost",
     "quadratize",
+    "replanner",
     "rollout",
     "tracking_rollout",
     "trajectory_cost",

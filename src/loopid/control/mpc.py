@@ -1,6 +1,9 @@
 """Model-predictive control (MPC) with warm-started iLQR on a learned model: one compiled
 episode on a JAX system (:func:`mpc_rollout`) and a jitted re-planner for Gymnasium envs
-(:class:`MPCController`). Problem, conventions and settings: :mod:`loopid.control.plan`.
+(:class:`MPCController`), and the re-planning step itself (:class:`Replanner`, :func:`replan`,
+:func:`local_action`) for controllers that live inside a larger compiled loop (the JAX plants'
+MPC, :mod:`loopid.algorithms.mpc_plant`). Problem, conventions and settings:
+:mod:`loopid.control.plan`.
 
 MPC (receding horizon; e.g. Tassa, Erez & Todorov 2012): every ``every`` steps, plan over the
 next ``horizon`` steps from the current state with ``iterations`` iLQR iterations, warm-started
@@ -19,12 +22,15 @@ keeps an acyclic import graph (``tests/test_imports.py``); this module is its pu
 
 from __future__ import annotations
 
+from collections.abc import Callable
+from typing import NamedTuple
+
 import jax
 import jax.numpy as jnp
 import numpy as np
 
 from loopid.control._checks import check_finite
-from loopid.control.ilqr import DEFAULT_ALPHAS
+from loopid.control.ilqr import DEFAULT_ALPHAS, ILQRSolution
 from loopid.control.plan import (
     MPCRollout,
     _alternatives,
@@ -32,13 +38,24 @@ from loopid.control.plan import (
     _check_every,
     _check_problem,
     _initial_actions,
+    _local_action,
     _mpc,
     _positive_int,
+    _Settings,
     _settings,
     _warm_start,
 )
 
-__all__ = ["MPCController", "MPCRollout", "mpc_rollout"]
+__all__ = [
+    "MPCController",
+    "MPCRollout",
+    "Replanner",
+    "empty_plan",
+    "local_action",
+    "mpc_rollout",
+    "replan",
+    "replanner",
+]
 
 
 _mpc_jit = jax.jit(_mpc, static_argnums=(0, 1, 2, 3, 4, 5, 11))
@@ -111,18 +128,106 @@ def mpc_rollout(
     )
 
 
+# ----------------------------------------------------------------------------- the re-planning step
+class Replanner(NamedTuple):
+    """MPC's settings for a controller that re-plans inside a larger compiled loop (build it with
+    :func:`replanner`; hashable except for the arrays, which are traced).
+
+    Attributes:
+        model: ``(params, x [n], u [m], t) -> [n]``, the model planned on (static).
+        cost: ``(x, u, t) -> scalar`` (static).
+        horizon: H, the steps of each plan; ``every``: steps between re-plans (1 <= every <= H);
+            ``iterations``: iLQR iterations per plan.
+        U0: ``[H, m]`` the actions a fresh plan starts from (a new episode's first plan).
+        alternatives: ``[A, H, m]`` open-loop actions also planned at every re-plan (the
+            cheapest plan on the model is kept), or None.
+        alpha: the step on iLQR's feedforward in the applied feedback (:func:`local_action`).
+        settings: iLQR's numeric settings (traced).
+    """
+
+    model: Callable
+    cost: Callable
+    horizon: int
+    every: int
+    iterations: int
+    U0: jax.Array
+    alternatives: jax.Array | None
+    alpha: float
+    settings: _Settings
+
+
+def replanner(
+    model_dynamics,
+    cost,
+    U0,
+    *,
+    horizon: int,
+    every: int = 1,
+    iterations: int = 10,
+    alternatives=None,
+    alpha: float = 0.0,
+    tol: float = 1e-9,
+    atol: float = 0.0,
+    alphas=DEFAULT_ALPHAS,
+    mu_init: float = 0.0,
+    mu_min: float = 1e-6,
+    mu_max: float = 1e10,
+    mu_factor: float = 10.0,
+) -> Replanner:
+    """A checked :class:`Replanner` (arguments as in :func:`mpc_rollout`; ``U0`` ``[m]`` or
+    ``[horizon, m]``). ValueError naming a bad size or setting."""
+    horizon = _positive_int("horizon", horizon)
+    every = _check_every(every, horizon)
+    iterations = _positive_int("iterations", iterations)
+    U0, m = _initial_actions(U0, horizon)
+    s = _settings(alphas, tol, atol, mu_init, mu_min, mu_max, mu_factor)
+    U_alt = _alternatives(alternatives, horizon, m)
+    return Replanner(model_dynamics, cost, horizon, every, iterations, U0, U_alt, float(alpha), s)
+
+
+def empty_plan(r: Replanner, n: int) -> ILQRSolution:
+    """A plan of zeros with :func:`replan`'s shapes (``X [H+1, n]``, ``U [H, m]``, ...): the
+    placeholder a controller carries before its first plan (pass ``fresh=True`` with it)."""
+    H, m = r.U0.shape
+    z = jnp.float64(0.0)
+    return ILQRSolution(
+        jnp.zeros((H + 1, n)), jnp.zeros((H, m)), jnp.zeros((H, m, n)), jnp.zeros((H, m)), z,
+        jnp.int32(0), jnp.bool_(False), jnp.zeros(r.iterations + 1),
+    )  # fmt: skip
+
+
+def replan(r: Replanner, params, x, t, previous: ILQRSolution, fresh, shift=None) -> ILQRSolution:
+    """One MPC plan (pure; vmappable): iLQR on ``r.model(params, ·)`` over ``r.horizon`` steps
+    from the state ``x [n]`` at time ``t``, warm-started from ``previous`` advanced by ``shift``
+    steps (default ``r.every``; its policy ``u_j = U_{j+s} − K_{j+s}(x − X_{j+s})``, the last
+    action repeated open loop past its end), or from ``r.U0`` where ``fresh``; with
+    ``r.alternatives`` the cheapest of those plans on the model."""
+    shift = r.every if shift is None else shift
+    t = jnp.asarray(t).astype(int)  # the planner's clock is the default integer type
+    U_w, K_w = _warm_start(previous.X, previous.U, previous.K, shift)
+    U_init = jnp.where(fresh, r.U0, U_w)
+    K_init = jnp.where(fresh, 0.0, K_w)
+    return _best_plan(
+        r.model, r.cost, r.iterations, params, x, U_init, K_init, t, r.settings, r.alternatives
+    )
+
+
+def local_action(r: Replanner, plan: ILQRSolution, x, tau) -> jax.Array:
+    """The plan's feedback ``u = U_τ − K_τ(x − X_τ) − α k_τ`` at ``τ`` steps since it was made."""
+    return _local_action(plan, x, tau, r.alpha)
+
+
 # ----------------------------------------------------------------------------- host MPC
 def _plan_rows(
     model, cost, iterations, stacked, params, dx, t, fresh, U_user, X, U, K, shift, s, U_alt
 ):
     """One iLQR plan per row (vmapped): warm-started from the row's previous plan (X, U, K)
     advanced by ``shift``, or from ``U_user`` where ``fresh``. Returns the plans."""
+    r = Replanner(model, cost, U_user.shape[0], 1, iterations, U_user, U_alt, 0.0, s)
 
     def one(dx, t, fresh, X, U, K, shift, p):
-        U_w, K_w = _warm_start(X, U, K, shift)
-        U0 = jnp.where(fresh, U_user, U_w)
-        K0 = jnp.where(fresh, 0.0, K_w)
-        return _best_plan(model, cost, iterations, p, dx, U0, K0, t, s, U_alt)
+        previous = ILQRSolution(X, U, K, *([None] * 5))
+        return replan(r, p, dx, t, previous, fresh, shift)
 
     p_axis = 0 if stacked else None
     axes = (0, 0, 0, 0, 0, 0, 0, p_axis)

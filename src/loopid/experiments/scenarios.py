@@ -20,7 +20,7 @@ from loopid.algorithms.policy_gradient import SAMPLES_MODES as PG_SAMPLES
 from loopid.experiments import model_planner
 from loopid.experiments.config import check_int, check_number, read_flat_file, replaced
 from loopid.systems.funnel_nominal import FUNNEL_NOMINALS
-from loopid.systems.tasks import TASK_NAMES
+from loopid.systems.tasks import TASK_DELAYS, TASK_NAMES
 
 
 @dataclass(frozen=True)
@@ -152,10 +152,15 @@ def validate(s: Scenario) -> None:
     check_number("pg_sigma", s.pg_sigma, 0.0, open_low=True)
     check_number("pg_step", s.pg_step, 0.0, open_low=True)
     model_planner.validate(s)
-    if s.planner_kind == "mpc":
+    if s.planner_kind == "mpc" and s.test_policy != "last":
         raise ValueError(
-            "planner_kind 'mpc' re-plans while an episode runs, which the helicopter's compiled "
-            "loop does not do yet (it flies gains); use 'ilqr', or mpc on a gym scenario"
+            f"planner_kind 'mpc' flies the last policy only, got test_policy {s.test_policy!r}"
+        )
+    delay = TASK_DELAYS[s.task] if s.delay is None else s.delay
+    if s.planner_kind == "mpc" and s.delay_mode == "latency" and delay > 0:
+        raise ValueError(
+            f"planner_kind 'mpc' flies delay_mode 'fifo' only, got delay_mode 'latency' with "
+            f"delay {delay}"
         )
 
 

@@ -36,6 +36,8 @@ _DEFAULTS = {  # name: (noise_std, delay)
     "hover-delay": (1.0, 1),
     "funnel": (0.1, 0),
 }
+#: Each task's own delay d (steps), which a scenario's ``delay`` overrides.
+TASK_DELAYS = {name: delay for name, (_, delay) in _DEFAULTS.items()}
 
 
 class Task(NamedTuple):

@@ -118,7 +118,8 @@ def _agent(key: Scenario) -> Agent:
 def _planning_agent(key: Scenario, st: Setup) -> Agent:
     """The ``model_*`` model class (:func:`loopid.experiments.model_planner.model_class`: one
     global model for every step; the funnel's time-varying nominal is kept) planned by iLQR on
-    the task's quadratic cost from the task's start, over the task horizon."""
+    the task's quadratic cost from the task's start, over the task horizon (under ``mpc`` too:
+    its gains are what the cell saves; MPC flies, :func:`_controller`)."""
     from loopid.algorithms.planning_agent import ilqr_plan, planning_agent
     from loopid.control import quadratic_cost
 
@@ -127,18 +128,57 @@ def _planning_agent(key: Scenario, st: Setup) -> Agent:
         raise ValueError(
             f"planner_horizon {key.planner_horizon} is longer than the task's horizon {horizon}"
         )
-    model = model_planner.model_class(key, st.nominal)
+    model = _model(key)
     target = jnp.asarray(task.target)
     x0 = helicopter.to_error(jnp.asarray(task.x0), target[0])
     U0 = np.zeros((horizon, helicopter.N_ACTION))
-    alternatives = key.planner_alternatives
+    seed_horizon = key.planner_horizon if key.planner_kind == "ilqr" else None
     plan = ilqr_plan(
         model, quadratic_cost(task.Q, task.R), x0, U0, iterations=key.planner_iterations,
-        seed_horizon=key.planner_horizon,
-        seed_alternatives=None if key.planner_horizon is None or alternatives is None
-        else np.asarray(alternatives, np.float64),
+        seed_horizon=seed_horizon,
+        seed_alternatives=None if seed_horizon is None else _alternatives(key),
     )  # fmt: skip
     return planning_agent(model, plan)
+
+
+def _alternatives(key: Scenario):
+    """``planner_alternatives`` as an array ``[k, 4]`` (None when unset)."""
+    alternatives = key.planner_alternatives
+    if alternatives is None:
+        return None
+    A = np.asarray(alternatives, np.float64)
+    if A.shape[1] != helicopter.N_ACTION:
+        raise ValueError(
+            f"planner_alternatives must be action vectors of {helicopter.N_ACTION} entries, "
+            f"got {alternatives!r}"
+        )
+    return A
+
+
+@lru_cache(maxsize=8)
+def _model(key: Scenario):
+    """The scenario's model class (one object per program key: the planners compiled for its
+    ``dynamics`` are shared)."""
+    return model_planner.model_class(key, _setup(key).nominal)
+
+
+def _mpc(key: Scenario):
+    """``planner_kind = "mpc"``: the plant flown by MPC on the seed's learned model
+    (:func:`loopid.algorithms.mpc_plant.mpc_plant`; ``planner_horizon``-step plans, default the
+    task horizon, re-planned every ``planner_every`` steps with ``planner_iterations`` iLQR
+    iterations, first from Δu = 0, the trim) and the loop's controller, the seed's model
+    parameters."""
+    from loopid.algorithms.mpc_plant import mpc_plant
+    from loopid.control import quadratic_cost, replanner
+
+    st, model = _setup(key), _model(key)
+    task = st.plant.task
+    planner = replanner(
+        model.dynamics, quadratic_cost(task.Q, task.R), np.zeros(helicopter.N_ACTION),
+        horizon=key.planner_horizon or st.plant.horizon, every=key.planner_every,
+        iterations=key.planner_iterations, alternatives=_alternatives(key),
+    )  # fmt: skip
+    return mpc_plant(st.plant, planner), lambda state, K: model.params(state)
 
 
 def agent(s: Scenario) -> Agent:
@@ -157,10 +197,11 @@ def _cell(key: Scenario):
         )
         for kind in NU_KINDS
     ]  # fmt: skip
+    plant, controller = _mpc(key) if key.planner_kind == "mpc" else (st.plant, None)
     cell = make_cell(
-        st.plant, _agent(key), nus, samples=key.samples, iterations=key.iterations,
+        plant, _agent(key), nus, samples=key.samples, iterations=key.iterations,
         n_test=key.test_trajectories, mode=key.sampling, gamma=key.gamma,
-        test_policy=key.test_policy,
+        test_policy=key.test_policy, controller=controller,
     )  # fmt: skip
     return nus, cell
 
