@@ -10,7 +10,7 @@ import pytest
 
 from loopid import control
 from loopid.algorithms.expert import expert_gains
-from loopid.algorithms.loop import seed_keys, trajectory_mean
+from loopid.algorithms.loop import eval_noise, seed_keys, trajectory_mean
 from loopid.algorithms.mpc_plant import mpc_plant
 from loopid.algorithms.planning_agent import feature_model
 from loopid.algorithms.plant import flatten, quadratic_form
@@ -137,6 +137,21 @@ def test_a_training_rollout_is_its_test_flight_and_restarts_at_a_blocks_end(mode
         np.testing.assert_array_equal(x[i], x0)
         left = i - 1 - np.argmax(mask[i - 1 :: -1])  # the last recorded row before the restart
         assert not mask[left + 1 : i].any() and i - (left + 1) <= every
+
+
+def test_a_seeds_mpc_costs_do_not_depend_on_the_seeds_beside_it(model):
+    """Seed chunks (:mod:`loopid.experiments.chunks`): 3 seeds' MPC test costs (4 trajectories
+    each, every seed its own model) alone and among 7 seeds, bit for bit."""
+    mc, W = model
+    plant = short_hover()
+    params = W[None] * (1.0 + 0.05 * jnp.arange(7.0))[:, None, None]  # 7 nearby models
+    mpc = mpc_plant(plant, control.replanner(
+        mc.dynamics, cost(plant), jnp.zeros(4), horizon=10, every=5, iterations=3))  # fmt: skip
+    noise = eval_noise(plant, seed_keys(np.arange(7)), 4, "last").test
+    run = jax.jit(mpc.eval_seeds)
+    alone, among = run(params[:3], noise[:, :, :3])[0], run(params, noise)[0][:3]
+    assert np.all(np.asarray(alone) < 1e4), alone
+    np.testing.assert_array_equal(np.asarray(alone), np.asarray(among))
 
 
 @pytest.mark.slow
