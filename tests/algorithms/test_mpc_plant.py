@@ -10,7 +10,7 @@ import pytest
 
 from loopid import control
 from loopid.algorithms.expert import expert_gains
-from loopid.algorithms.loop import eval_noise, seed_keys, trajectory_mean
+from loopid.algorithms.loop import EVALUATE, eval_noise, seed_keys, trajectory_mean
 from loopid.algorithms.mpc_plant import mpc_plant
 from loopid.algorithms.planning_agent import feature_model
 from loopid.algorithms.plant import flatten, quadratic_form
@@ -48,6 +48,11 @@ def cost(plant):
     return control.quadratic_cost(plant.task.Q, plant.task.R)
 
 
+def flown_by_mpc(plant, model, **settings):
+    """``plant`` flown by MPC on ``model`` with the task's cost, first plans from Δu = 0."""
+    return mpc_plant(plant, control.replanner(model, cost(plant), jnp.zeros(4), **settings))
+
+
 def test_one_plan_over_the_horizon_flies_as_its_gains(model):
     """H = every = the horizon: MPC plans once, from the start, and its feedback
     U_j − K_j(Δx − X_j) is the plan's gains (:func:`loopid.control.as_gains`, α = 0); the gains
@@ -58,8 +63,7 @@ def test_one_plan_over_the_horizon_flies_as_its_gains(model):
     x0 = helicopter.to_error(plant.task.x0, plant.task.target[0])
     sol = control.plan(mc.dynamics, cost(plant), x0, jnp.zeros((T, 4)), params=W, iterations=10)
     K = control.as_gains(sol, alpha=0.0)
-    mpc = mpc_plant(plant, control.replanner(
-        mc.dynamics, cost(plant), jnp.zeros(4), horizon=T, every=T, iterations=10))  # fmt: skip
+    mpc = flown_by_mpc(plant, mc.dynamics, horizon=T, every=T, iterations=10).plant
     noise = plant.eval_noise(jax.random.key(1), 3)
     ref = jax.vmap(lambda w: plant.eval_one(K, w))(noise)
     got = jax.jit(jax.vmap(lambda w: mpc.eval_one(W, w)))(noise)
@@ -99,11 +103,12 @@ def test_replanning_matches_mpc_rollout_on_the_simulator_in_error_coordinates():
         iterations=2,
     )  # fmt: skip
     total = float(jnp.sum(ref.costs) + quadratic_form(task.Q)(ref.X[-1]))
-    mpc = mpc_plant(plant, control.replanner(
-        model, cost(plant), jnp.zeros(4), horizon=10, every=3, iterations=2))  # fmt: skip
-    got, diverged = jax.jit(mpc.eval_one)(None, jnp.zeros((T, 6)))
+    mpc = flown_by_mpc(plant, model, horizon=10, every=3, iterations=2)
+    got, diverged = jax.jit(mpc.plant.eval_one)(None, jnp.zeros((T, 6)))
     assert not diverged and 0 < total < 1e4
     np.testing.assert_allclose(float(got), total, rtol=1e-9)
+    X, _ = jax.jit(mpc.flight)(None, jnp.zeros((T, 6)))  # the raw states flown
+    np.testing.assert_allclose(jax.vmap(helicopter.to_error)(X, target), ref.X, atol=1e-9)
 
 
 def test_a_training_rollout_is_its_test_flight_and_restarts_at_a_blocks_end(model):
@@ -116,7 +121,7 @@ def test_a_training_rollout_is_its_test_flight_and_restarts_at_a_blocks_end(mode
     every = 4
     planner = control.replanner(mc.dynamics, cost(plant := short_hover()), jnp.zeros(4),
                                 horizon=10, every=every, iterations=5)  # fmt: skip
-    wide = mpc_plant(short_hover(stop_norm=1e9), planner)
+    wide = mpc_plant(short_hover(stop_norm=1e9), planner).plant
     key = jax.random.key(3)
     rows = jax.jit(wide.rollout)(W, key)
     assert rows.mask.shape == (T,) and rows.mask.all()
@@ -126,7 +131,7 @@ def test_a_training_rollout_is_its_test_flight_and_restarts_at_a_blocks_end(mode
     stage = jax.vmap(lambda dx, du: qQ(dx) + qR(du))(rows.dx, rows.du)
     np.testing.assert_allclose(float(jnp.sum(stage) + qQ(rows.dx_next[-1])), flown, rtol=1e-9)
 
-    tight = mpc_plant(short_hover(stop_norm=0.8), planner)
+    tight = mpc_plant(short_hover(stop_norm=0.8), planner).plant
     r = jax.jit(tight.rollout)(W, jax.random.key(4))
     x0 = np.asarray(plant.task.x0)
     mask, t, x = np.asarray(r.mask), np.asarray(r.t), np.asarray(r.x)
@@ -145,8 +150,7 @@ def test_a_seeds_mpc_costs_do_not_depend_on_the_seeds_beside_it(model):
     mc, W = model
     plant = short_hover()
     params = W[None] * (1.0 + 0.05 * jnp.arange(7.0))[:, None, None]  # 7 nearby models
-    mpc = mpc_plant(plant, control.replanner(
-        mc.dynamics, cost(plant), jnp.zeros(4), horizon=10, every=5, iterations=3))  # fmt: skip
+    mpc = flown_by_mpc(plant, mc.dynamics, horizon=10, every=5, iterations=3).plant
     noise = eval_noise(plant, seed_keys(np.arange(7)), 4, "last").test
     run = jax.jit(mpc.eval_seeds)
     alone, among = run(params[:3], noise[:, :, :3])[0], run(params, noise)[0][:3]
@@ -168,7 +172,20 @@ def test_the_cell_flies_mpc_on_each_seeds_model():
     assert np.all(np.isfinite(trace.rows.test_cost))
     assert trace.final["K"].shape == (3, 400, 4, 21)
     key = family.program_key(s)
-    plant, _ = family._mpc(key)
+    plant = family._mpc(key)[0].plant
     noise = family._cell(key)[1].noise(seed_keys(np.arange(3))).test
     costs, _ = jax.jit(plant.eval_seeds)(jnp.asarray(trace.final["W_features"]), noise)
     np.testing.assert_allclose(trajectory_mean(costs), trace.rows.test_cost[:, -1], rtol=1e-9)
+
+    # loopid evaluate's path: MPC re-planning on each seed's saved model, on fresh noise (key
+    # stream 4); its first episode is the flight of the seed's restored model under that noise,
+    # and flying the saved gains instead costs something else
+    saved = {k: np.asarray(v) for k, v in trace.final.items()}
+    evaluated = family.evaluate(s, saved, np.arange(3), 2)
+    w = plant.eval_noise(jax.random.fold_in(jax.random.key(0), EVALUATE), 2)[0]
+    W0 = family._model(key).restore({"W_features": saved["W_features"][0]})
+    X, total = jax.jit(family._mpc(key)[0].flight)(W0, w)
+    assert X.shape == (401, 21)
+    np.testing.assert_allclose(evaluated[0, 0], min(float(total), s.cost_cap), rtol=1e-9)
+    gains = family.evaluate(s, {"K": saved["K"]}, np.arange(3), 2)
+    assert not np.allclose(gains, evaluated)

@@ -148,3 +148,29 @@ def test_bad_settings_raise_one_line(settings, word):
     with pytest.raises(ValueError, match=word) as info:
         mlp_learner(NOMINAL, **settings)
     assert "\n" not in str(info.value)
+
+
+@pytest.mark.parametrize("kind", ["mlp", "features"])
+def test_a_model_restored_from_its_saved_arrays_predicts_as_the_learned_one(rng, kind):
+    """``ModelClass.restore(saved(state))`` (what ``loopid evaluate`` re-plans on for a run that
+    flew MPC) gives the learned model's dynamics exactly, after two updates that moved it."""
+    from loopid.algorithms.planning_agent import feature_model, mlp_model
+    from loopid.algorithms.plant import Transitions
+    from loopid.learners import ftrl_least_squares
+    from loopid.models.feature_model import polynomial
+
+    if kind == "mlp":
+        mc = mlp_model(NOMINAL, mlp_learner(NOMINAL, hidden=(8,), lr=3e-3, steps=20, capacity=300))
+    else:
+        mc = feature_model(NOMINAL, polynomial(N, M, 3), ftrl_least_squares(1e-3))
+    state = mc.init()
+    for _ in range(2):
+        dx, du, dx_next = _pendulum(rng, 100)
+        rows = Transitions(dx, dx, du, dx_next, jnp.zeros(100, jnp.int32), jnp.ones(100, bool))
+        state = mc.update(state, rows)
+    saved = {k: np.asarray(v) for k, v in mc.saved(state).items()}
+    dx, du, _ = _pendulum(rng, 5)
+    learned = jax.vmap(lambda x, u: mc.dynamics(mc.params(state), x, u, 0))(dx, du)
+    restored = jax.vmap(lambda x, u: mc.dynamics(mc.restore(saved), x, u, 0))(dx, du)
+    np.testing.assert_array_equal(np.asarray(restored), np.asarray(learned))
+    assert np.max(np.abs(np.asarray(learned) - np.asarray(dx))) > 1e-3  # it learned something

@@ -32,7 +32,8 @@ controller would plan from an observation d steps old; the gains' reading of it 
 counterpart here yet).
 """
 
-from typing import Any
+from collections.abc import Callable
+from typing import Any, NamedTuple
 
 import jax
 import jax.numpy as jnp
@@ -41,9 +42,18 @@ from loopid.algorithms.plant import Plant, Transitions, clean, quadratic_form
 from loopid.control.mpc import Replanner, empty_plan, local_action, replan
 
 
-def mpc_plant(plant: Plant, planner: Replanner) -> Plant:
-    """``plant`` flown by MPC (module docstring): the returned :class:`Plant`'s ``rollout``,
-    ``eval_one`` and ``eval_seeds`` take the model's parameters ``P`` (``[S, ...]`` leaves for
+class MPCPlant(NamedTuple):
+    """:func:`mpc_plant`'s result: ``plant``, the loop's :class:`Plant` flown by MPC, and
+    ``flight(P, noise [horizon, n_noise]) -> (X [horizon + 1, n_x], total cost)``, one test
+    trajectory's raw states (what ``trajectories.png`` and ``loopid animate`` draw)."""
+
+    plant: Plant
+    flight: Callable[..., tuple[jax.Array, jax.Array]]
+
+
+def mpc_plant(plant: Plant, planner: Replanner) -> MPCPlant:
+    """``plant`` flown by MPC (module docstring): the returned plant's ``rollout``, ``eval_one``
+    and ``eval_seeds`` take the model's parameters ``P`` (``[S, ...]`` leaves for
     ``eval_seeds``) where ``plant``'s take gains; ``query`` and ``eval_noise`` are ``plant``'s.
 
     ``planner``: :func:`loopid.control.mpc.replanner` of the learned model
@@ -75,9 +85,9 @@ def mpc_plant(plant: Plant, planner: Replanner) -> Plant:
         pad = jnp.zeros((length - a.shape[0], *a.shape[1:]), a.dtype)
         return jnp.concatenate([a, pad]).reshape(blocks, every, *a.shape[1:])
 
-    def eval_one(params: Any, noise: jax.Array) -> tuple[jax.Array, jax.Array]:
-        """Capped total cost and diverged flag of one MPC test trajectory under process noise
-        ``[horizon, n_noise]`` (the plant's cost, summed as its ``eval_one`` sums it)."""
+    def flight(params: Any, noise: jax.Array) -> tuple[jax.Array, jax.Array]:
+        """One MPC test trajectory under process noise ``[horizon, n_noise]``: its raw states
+        ``X [horizon + 1, n_x]`` and its total cost (uncapped)."""
 
         def block(carry, inp):
             x, memory, total, previous = carry
@@ -96,15 +106,21 @@ def mpc_plant(plant: Plant, planner: Replanner) -> Plant:
                 total = total + jnp.where(live, quad_Q(dx) + quad_R(du), 0.0)
                 x = jnp.where(live, x_next, x)
                 memory = jnp.where(live, memory_next, memory)
-                return (x, memory, total), None
+                return (x, memory, total), x
 
-            (x, memory, total), _ = jax.lax.scan(step, (x, memory, total), (w, jnp.arange(every)))
-            return (x, memory, total, plan), None
+            (x, memory, total), X = jax.lax.scan(step, (x, memory, total), (w, jnp.arange(every)))
+            return (x, memory, total, plan), X
 
         carry = (x0, memory0, jnp.float64(0.0), empty_plan(planner, n))
         inputs = (blocked(noise), jnp.arange(blocks))
-        (x, _, total, _), _ = jax.lax.scan(block, carry, inputs)
-        total = total + quad_Q(to_error(x, target[horizon]))
+        (x, _, total, _), X = jax.lax.scan(block, carry, inputs)
+        X = jnp.concatenate([x0[None], X.reshape(length, -1)[:horizon]])
+        return X, total + quad_Q(to_error(x, target[horizon]))
+
+    def eval_one(params: Any, noise: jax.Array) -> tuple[jax.Array, jax.Array]:
+        """Capped total cost and diverged flag of one MPC test trajectory under process noise
+        ``[horizon, n_noise]`` (the plant's cost, summed as its ``eval_one`` sums it)."""
+        _, total = flight(params, noise)
         diverged = ~jnp.isfinite(total) | (total >= cost_cap)
         return jnp.where(diverged, cost_cap, total), diverged
 
@@ -165,4 +181,5 @@ def mpc_plant(plant: Plant, planner: Replanner) -> Plant:
         _, rows = jax.lax.scan(block, carry, (blocked(noise), blocked(eps)))
         return clean(jax.tree_util.tree_map(lambda a: a.reshape(length, *a.shape[2:]), rows))
 
-    return plant._replace(rollout=rollout, eval_one=eval_one, eval_seeds=eval_seeds)
+    return MPCPlant(plant._replace(rollout=rollout, eval_one=eval_one, eval_seeds=eval_seeds),
+                    flight)  # fmt: skip

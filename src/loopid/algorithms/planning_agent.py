@@ -44,7 +44,9 @@ class ModelClass(NamedTuple):
       du [m], t) -> dx' [n]``, the model as a pure, differentiable function of them. ``dynamics``
       is one function object per model class, so a planner compiled for it serves every
       iteration and every seed (the parameters are traced);
-    - ``saved(state) -> {name: array}``: what a run keeps of the model (:attr:`Trace.final`);
+    - ``saved(state) -> {name: array}``: what a run keeps of the model (:attr:`Trace.final`),
+      and ``restore(saved) -> P``: the parameters again from one seed's saved arrays (what
+      ``loopid evaluate`` flies a saved MPC with);
     - ``convex``: whether the learner solves a convex online problem (the regret guarantee).
     """
 
@@ -54,6 +56,7 @@ class ModelClass(NamedTuple):
     params: Callable[[Any], Any]
     dynamics: Callable[..., jax.Array]
     saved: Callable[[Any], dict]
+    restore: Callable[[dict], Any]
     convex: bool = True
 
 
@@ -91,7 +94,8 @@ def feature_model(nominal: LinearOffsetModel, fmap: F.FeatureMap, learner: Learn
 
     return ModelClass(
         init, update, loss, params=lambda state: state.W, dynamics=dynamics,
-        saved=lambda state: {"W_features": state.W}, convex=True,
+        saved=lambda state: {"W_features": state.W},
+        restore=lambda saved: jnp.asarray(saved["W_features"]), convex=True,
     )  # fmt: skip
 
 
@@ -119,9 +123,20 @@ def mlp_model(nominal: LinearOffsetModel, learner: MLPLearner, seed: int = 0) ->
             out[f"mlp.{i}.W"], out[f"mlp.{i}.b"] = W, b
         return out | {f"mlp.norm.{k}": v for k, v in state.norm._asdict().items()}
 
+    def restore(arrays: dict):
+        """A state whose network and normalisation are the saved ones (the rest, which the
+        dynamics do not read, that of a fresh state)."""
+        state = learner.init(seed)
+        layers = tuple(
+            (jnp.asarray(arrays[f"mlp.{i}.W"]), jnp.asarray(arrays[f"mlp.{i}.b"]))
+            for i in range(len(state.params))
+        )
+        norm = type(state.norm)(*(jnp.asarray(arrays[f"mlp.norm.{k}"]) for k in state.norm._fields))
+        return state._replace(params=layers, norm=norm)
+
     return ModelClass(
         lambda: learner.init(seed), update, loss, params=lambda state: state,
-        dynamics=dynamics, saved=saved, convex=False,
+        dynamics=dynamics, saved=saved, restore=restore, convex=False,
     )  # fmt: skip
 
 

@@ -86,7 +86,12 @@ def evaluate_run(
             pick = np.ones(seeds.shape, bool) if seed is None else seeds == seed
             if not pick.any():
                 raise ValueError(f"seed {seed!r} is not in {name}/{m}; its seeds: {seeds.tolist()}")
-            costs = family.evaluate(config, arrays["K"][pick], seeds[pick], n, env)
+            chosen = {
+                k: v if k.startswith("shared.") else v[pick]
+                for k, v in arrays.items()
+                if k != "seeds"
+            }
+            costs = family.evaluate(config, chosen, seeds[pick], n, env)
             for k, c in zip(seeds[pick].tolist(), costs, strict=True):
                 se = float(np.std(c, ddof=1) / np.sqrt(c.size)) if c.size > 1 else 0.0
                 rows.append((name, m, k, n, env or "", float(np.mean(c)), se,

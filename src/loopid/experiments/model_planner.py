@@ -183,6 +183,7 @@ def describe(s) -> str:
         )
     else:
         model = "the linear offset model, learned by FTRL"
-    every = f"MPC (iLQR re-planned every {s.planner_every} steps)"
+    window = "" if s.planner_horizon is None else f"{s.planner_horizon}-step "
+    every = f"MPC ({window}iLQR plans re-planned every {s.planner_every} steps)"
     planner = {"lqr": "LQR", "ilqr": "iLQR over the task horizon", "mpc": every}[s.planner_kind]
     return f"Model: {model}; planner: {planner}."

@@ -58,9 +58,11 @@ class Family:
         method's saved final policy flies; None when the family draws none.
       animate: ``animate(run_dir, config, methods, seed, path)``: an animated GIF of those
         policies flying; None when the family cannot.
-      evaluate: ``evaluate(config, K [S, ...], seeds, episodes, env) -> costs [S, episodes]``:
+      evaluate: ``evaluate(config, arrays, seeds, episodes, env) -> costs [S, episodes]``:
         saved policies on fresh test episodes (noise the run never saw; ``env``: another
-        Gymnasium id, gym only); None when the family cannot.
+        Gymnasium id, gym only); ``arrays``: the seeds' saved arrays (:mod:`.artifacts`),
+        ``{name: [S, ...]}`` (the gains ``K``, and the model's parameters, which a saved MPC
+        re-plans on) with the ``shared.*`` ones whole; None when the family cannot.
       memory: ``memory(config, method, seeds) -> bytes``: the peak memory of one cell's
         programs for that many seeds (:mod:`loopid.experiments.chunks` sizes chunks with it);
         None when the family's cells run unchunked (all seeds at once).

@@ -565,10 +565,12 @@ def load(s: GymScenario, method: str, arrays: dict):
     return model, GainController(arrays["K"], error, np.asarray(shape.a_op))
 
 
-def evaluate(s: GymScenario, K, seeds, episodes: int, env=None) -> np.ndarray:
-    """Capped test costs ``[S, episodes]`` of policies ``K [S, T, m, n]`` on fresh episodes
-    (slot stream 4); ``env``: fly them on another Gymnasium id (transfer) with the same
-    observation indices, target and costs."""
+def evaluate(s: GymScenario, arrays: dict, seeds, episodes: int, env=None) -> np.ndarray:
+    """Capped test costs ``[S, episodes]`` of the saved policies ``arrays["K"] [S, T, m, n]``
+    on fresh episodes (slot stream 4); ``env``: fly them on another Gymnasium id (transfer)
+    with the same observation indices, target and costs. (A run whose ``[planner]`` was
+    ``mpc`` flew MPC; its saved gains are the task-horizon iLQR plan of the same model.)"""
+    K = arrays["K"]
     if env is not None:
         s = s.replace(env_id=env)
     system = make_system(s)

@@ -164,10 +164,10 @@ def _model(key: Scenario):
 
 def _mpc(key: Scenario):
     """``planner_kind = "mpc"``: the plant flown by MPC on the seed's learned model
-    (:func:`loopid.algorithms.mpc_plant.mpc_plant`; ``planner_horizon``-step plans, default the
-    task horizon, re-planned every ``planner_every`` steps with ``planner_iterations`` iLQR
-    iterations, first from Δu = 0, the trim) and the loop's controller, the seed's model
-    parameters."""
+    (:func:`loopid.algorithms.mpc_plant.mpc_plant`, an :class:`MPCPlant`; ``planner_horizon``-step
+    plans, default the task horizon, re-planned every ``planner_every`` steps with
+    ``planner_iterations`` iLQR iterations, first from Δu = 0, the trim) and the loop's
+    controller, the seed's model parameters."""
     from loopid.algorithms.mpc_plant import mpc_plant
     from loopid.control import quadratic_cost, replanner
 
@@ -197,7 +197,10 @@ def _cell(key: Scenario):
         )
         for kind in NU_KINDS
     ]  # fmt: skip
-    plant, controller = _mpc(key) if key.planner_kind == "mpc" else (st.plant, None)
+    plant, controller = st.plant, None
+    if key.planner_kind == "mpc":
+        mpc, controller = _mpc(key)
+        plant = mpc.plant
     cell = make_cell(
         plant, _agent(key), nus, samples=key.samples, iterations=key.iterations,
         n_test=key.test_trajectories, mode=key.sampling, gamma=key.gamma,
@@ -312,20 +315,41 @@ def shared(s: Scenario, method: str) -> dict:
     return {"A": np.asarray(nominal.A), "B": np.asarray(nominal.B)}
 
 
-def evaluate(s: Scenario, K, seeds, episodes: int, env=None) -> np.ndarray:
-    """Capped test costs ``[S, episodes]`` of policies ``K [S, T, m, n]`` on fresh noise
-    (``fold_in(key(seed), 4)``), flown as the run flew them (its delay reading included)."""
+def evaluate(s: Scenario, arrays: dict, seeds, episodes: int, env=None) -> np.ndarray:
+    """Capped test costs ``[S, episodes]`` of the saved policies on fresh noise
+    (``fold_in(key(seed), 4)``), flown as the run flew them (its delay reading included): the
+    gains ``arrays["K"] [S, T, m, n]``, or under ``planner_kind = "mpc"`` MPC re-planning on
+    each seed's saved model (:func:`_saved_params`)."""
     if env is not None:
         raise ValueError(f"--env {env!r} applies to gym runs, not to {s.name}")
-    plant = setup(s).plant
+    plant, policy = setup(s).plant, jax.numpy.asarray(arrays["K"])
+    if _flew_mpc(s, arrays):
+        plant, policy = _mpc(program_key(s))[0].plant, _saved_params(s, arrays)
     noise = noise_program(plant, episodes, "last", EVALUATE)(seed_keys(seeds)).test
-    costs, _ = jax.jit(plant.eval_seeds)(jax.numpy.asarray(K), noise)
+    costs, _ = jax.jit(plant.eval_seeds)(policy, noise)
     return np.asarray(costs)
+
+
+def _flew_mpc(s: Scenario, arrays: dict) -> bool:
+    """Whether the cell whose saved arrays these are flew MPC: ``planner_kind = "mpc"`` and a
+    learned model saved (the expert and the policy-gradient baseline fly gains)."""
+    return s.planner_kind == "mpc" and ("W_features" in arrays or "mlp.0.W" in arrays)
+
+
+def _saved_params(s: Scenario, arrays: dict):
+    """The learned models' parameters ``[S, ...]`` from the seeds' saved arrays
+    ``{name: [S, ...]}`` (:attr:`loopid.algorithms.planning_agent.ModelClass.restore`)."""
+    restore = _model(program_key(s)).restore
+    S = len(arrays["K"])
+    one = [restore({k: v[i] for k, v in arrays.items() if not k.startswith("shared.")})
+           for i in range(S)]  # fmt: skip
+    return jax.tree.map(lambda *a: jax.numpy.stack(a), *one)
 
 
 def _flights(run_dir, s: Scenario, methods, seed: int) -> dict:
     """``{method: X [T+1, 21]}``: each method's saved final policy at ``seed`` flying the run's
-    first test trajectory of that seed (its noise), from the task's start."""
+    first test trajectory of that seed (its noise), from the task's start (MPC re-planning on
+    the saved model where the run flew MPC)."""
     from loopid.experiments import artifacts
     from loopid.experiments.flights import fly
 
@@ -335,8 +359,12 @@ def _flights(run_dir, s: Scenario, methods, seed: int) -> dict:
     flights = {}
     for m in methods:
         _, arrays = artifacts.read(Path(run_dir) / "cells", s.name, m)
-        K = artifacts.for_seed(arrays, seed, f"{s.name}/{m}")["K"]
-        flights[m] = fly(plant.task, K, noise, s.delay_mode)
+        one = artifacts.for_seed(arrays, seed, f"{s.name}/{m}")
+        if _flew_mpc(s, one):
+            params = _model(program_key(s)).restore(one)
+            flights[m] = np.asarray(jax.jit(_mpc(program_key(s))[0].flight)(params, noise)[0])
+        else:
+            flights[m] = fly(plant.task, one["K"], noise, s.delay_mode)
     return flights
 
 

@@ -345,9 +345,10 @@ def load(s: MDPScenario, method: str, arrays: dict):
     return TableModel(arrays["T_hat"]), TableController(arrays["K"])
 
 
-def evaluate(s: MDPScenario, K, seeds, episodes: int, env=None) -> np.ndarray:
-    """The exact ``J_μ(π)`` of each saved policy ``K [S, n_states, n_actions]``, repeated
-    ``episodes`` times (no sampling: the evaluation is exact)."""
+def evaluate(s: MDPScenario, arrays: dict, seeds, episodes: int, env=None) -> np.ndarray:
+    """The exact ``J_μ(π)`` of each saved policy ``arrays["K"] [S, n_states, n_actions]``,
+    repeated ``episodes`` times (no sampling: the evaluation is exact)."""
+    K = arrays["K"]
     if env is not None:
         raise ValueError(f"--env {env!r} applies to gym runs, not to {s.name}")
     plant = mdp_setup(s).plant
