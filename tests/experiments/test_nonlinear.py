@@ -104,14 +104,22 @@ def test_mpc_on_the_learned_model_swings_up_from_random_starts(reference):
     one plan cannot fly such starts (measured: ~1,300), MPC re-plans on the learned model as it
     flies. DAgger, 2 seeds, 3 iterations: both seeds' final mean test cost (2 episodes) within
     1.5x the true-model iLQR's (measured 364.9 and 334.6; the true-model MPC itself costs
-    344-375 from such starts)."""
+    344-375 from such starts), and so is every episode of ``loopid evaluate``'s (fresh starts,
+    MPC on the saved models)."""
     s = swingup(
         seeds=2, iterations=3, test_trajectories=2, planner_kind="mpc", planner_horizon=40,
         planner_every=2, planner_iterations=10, env_kwargs={"noise": 0.1},
     )  # fmt: skip
-    rows = gym.run("dagger", s).rows
+    trace = gym.run("dagger", s)
+    rows = trace.rows
     assert np.all(rows.test_cost[:, -1] <= 1.5 * reference), rows.test_cost
     assert np.all(rows.test_cost[:, 0] > 3 * reference), rows.test_cost
+
+    # loopid evaluate's path: fresh starts, MPC re-planning on each seed's saved model (the
+    # saved gains of one plan would cost ~1,300 from such starts)
+    saved = {k: np.asarray(v) for k, v in trace.final.items()}
+    costs = gym.evaluate(s, saved, np.arange(2), 2)
+    assert np.all(costs <= 1.5 * reference), costs
 
 
 @pytest.mark.slow

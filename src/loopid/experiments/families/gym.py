@@ -39,6 +39,7 @@ from pathlib import Path
 from typing import Any, NamedTuple
 
 import jax
+import jax.numpy as jnp
 import numpy as np
 import pyarrow as pa
 
@@ -349,11 +350,15 @@ def _cost(s: GymScenario, shape: Shape):
 
 class Learner(NamedTuple):
     """A scenario's agent, its compiled host cell and what flies its policy's episodes
-    (``controller(learner_states, K) -> policy``; None: the gains)."""
+    (``controller(learner_states, K) -> policy``; None: the gains). Under ``[planner] kind =
+    "mpc"``: ``mpc(params) -> policy``, the MPC of the models ``params`` (a leading seed axis),
+    and ``restore(saved) -> params`` of one seed's saved arrays (``loopid evaluate``)."""
 
     agent: Any
     cell: Any
     controller: Any = None
+    mpc: Any = None
+    restore: Any = None
 
 
 @lru_cache(maxsize=4)
@@ -419,8 +424,7 @@ def _planning_learner(s: GymScenario, shape: Shape, cost, nominal) -> Learner:
     if s.planner_kind != "mpc":
         return Learner(agent, cell)
 
-    def controller(states, K):
-        params = jax.vmap(mc.params)(states)
+    def mpc(params):
         return MPCController(
             mc.dynamics, plan_cost, params, U0[0], horizon=s.planner_horizon or shape.horizon,
             target=shape.target, observe=shape.observe, a_op=shape.a_op,
@@ -428,7 +432,10 @@ def _planning_learner(s: GymScenario, shape: Shape, cost, nominal) -> Learner:
             stacked=True,
         )  # fmt: skip
 
-    return Learner(agent, cell, controller)
+    def controller(states, K):
+        return mpc(jax.vmap(mc.params)(states))
+
+    return Learner(agent, cell, controller, mpc, mc.restore)
 
 
 def _exploration(s: GymScenario, system: GymSystem) -> Exploration:
@@ -565,18 +572,30 @@ def load(s: GymScenario, method: str, arrays: dict):
     return model, GainController(arrays["K"], error, np.asarray(shape.a_op))
 
 
+def _saved_policy(learner: Learner, system: GymSystem, arrays: dict):
+    """What the seeds' saved arrays ``{name: [S, ...]}`` fly: MPC re-planning on each seed's
+    saved model where the cell flew MPC (``[planner] kind = "mpc"`` and a learned model
+    saved), else the gains ``K``."""
+    if learner.mpc is None or not ("W_features" in arrays or "mlp.0.W" in arrays):
+        return system.linear_policy(np.asarray(arrays["K"]))
+    model = {k: v for k, v in arrays.items() if not k.startswith("shared.") and k != "seeds"}
+    one = [learner.restore({k: v[i] for k, v in model.items()}) for i in range(len(arrays["K"]))]
+    return learner.mpc(jax.tree.map(lambda *a: jnp.stack(a), *one))
+
+
 def evaluate(s: GymScenario, arrays: dict, seeds, episodes: int, env=None) -> np.ndarray:
     """Capped test costs ``[S, episodes]`` of the saved policies ``arrays["K"] [S, T, m, n]``
     on fresh episodes (slot stream 4); ``env``: fly them on another Gymnasium id (transfer)
-    with the same observation indices, target and costs. (A run whose ``[planner]`` was
-    ``mpc`` flew MPC; its saved gains are the task-horizon iLQR plan of the same model.)"""
-    K = arrays["K"]
+    with the same observation indices, target and costs. A cell that flew MPC (``[planner]
+    kind = "mpc"``, a learned model saved) flies MPC again, re-planning on each seed's saved
+    model."""
     if env is not None:
         s = s.replace(env_id=env)
     system = make_system(s)
     try:
-        _, _, test_cost = _parts(s, system)
-        costs, _ = test_episodes(system, np.asarray(K), [int(x) for x in seeds], episodes,
+        learner, _, test_cost = _parts(s, system)
+        policy = _saved_policy(learner, system, arrays)
+        costs, _ = test_episodes(system, policy, [int(x) for x in seeds], episodes,
                                  test_cost, s.termination, s.cost_cap, stream=EVALUATE)  # fmt: skip
     finally:
         system.close()
@@ -585,7 +604,8 @@ def evaluate(s: GymScenario, arrays: dict, seeds, episodes: int, env=None) -> np
 
 def trajectories(run_dir, configs, path) -> None:
     """``trajectories.png``: each method's saved final policy at the first seed flying that
-    seed's first test episode; one panel per observed coordinate (``o − o*`` against steps)."""
+    seed's first test episode (MPC where the cell flew MPC, :func:`_saved_policy`); one panel
+    per observed coordinate (``o − o*`` against steps)."""
     import io
 
     import matplotlib
@@ -605,12 +625,14 @@ def trajectories(run_dir, configs, path) -> None:
             continue
         system = make_system(s)
         try:
+            learner = _parts(s, system)[0]
             flights = {}
             for m in methods:
                 _, arrays = artifacts.read(cells, name, m)
                 seed = int(arrays["seeds"][0])
                 slot = Slot(0, 0, slot_seeds(seed, 0, _TEST, 1)[0], 0.0, False)
-                r = system.rollouts([system.linear_policy(arrays["K"][:1])], [slot])
+                first = {k: v if k.startswith("shared.") else v[:1] for k, v in arrays.items()}
+                r = system.rollouts([_saved_policy(learner, system, first)], [slot])
                 steps = int(r.mask[0].sum())
                 flights[m] = system.observed(r.x[0, :steps]) - np.asarray(_shape(system).target)
             n_obs = system.n_obs
