@@ -34,6 +34,15 @@
     (SyncVectorEnv), env steps per second after a compiling episode, best of ``REPEATS``;
     the true model against the degree-3 feature model above.
 
+(c) MPC in the helicopter's compiled loop (:func:`loopid.algorithms.mpc_plant.mpc_plant`, what
+    ``planner_kind = "mpc"`` flies): the test flights of one hover iteration, ``eval_seeds`` of
+    S = 4 seeds x 8 trajectories x 400 steps (compiled; median of ``REPEATS``), 50-step plans of 5
+    iLQR iterations re-planned every 10 steps. Rows: the true model (the noise-free helicopter in
+    error coordinates), and the hover nominal plus a learned degree-1 (the linear offset model)
+    or degree-2 polynomial (F = 325), fitted by FTRL on 16 of the expert's hover rollouts with
+    action noise N(0, 0.1²). The gains plant flying the expert's gains over the same noise is a
+    second reference: what one MPC trajectory step costs against one gains step.
+
 The reference of every ratio is the true-model row of the same system, measured in the same run.
 Goal (issue 19): learned / true <= 2.
 
@@ -236,6 +245,49 @@ def print_plans(title, rows, iterations):
               f"{per / ref:8.2f}x{float(sol.cost):11.4g}")  # fmt: skip
 
 
+# ----------------------------------------------------------------------------- (c) JAX-loop MPC
+def mpc_plant_rows(repeats, quick):
+    """[(label, seconds, compile seconds, mean test cost)] of the hover's MPC test flights
+    (module docstring, (c)); the first row flies the expert's gains."""
+    from loopid.algorithms.expert import expert_gains
+    from loopid.algorithms.loop import eval_noise, seed_keys
+    from loopid.algorithms.mpc_plant import mpc_plant
+    from loopid.algorithms.plant import flatten, make_plant
+    from loopid.models.linear_offset import hover_nominal
+
+    task = make_task("hover")
+    plant = make_plant(task, h.DYNAMICS)
+    S, n_test = (2, 4) if quick else (4, 8)
+    W = eval_noise(plant, seed_keys(np.arange(S)), n_test, "last").test
+    K = jnp.broadcast_to(expert_gains(task), (S, plant.horizon, 4, 21))
+    keys = jax.random.split(jax.random.key(0), 16)
+    data = flatten(jax.vmap(lambda k: plant.rollout(K[0], k, 0.1))(keys))
+    nominal = hover_nominal(21, 4)
+    cost = control.quadratic_cost(task.Q, task.R)
+    target = task.target
+
+    def true_model(p, dx, du, t):
+        x = h.from_error(dx, target[t])
+        return h.to_error(h.step(x, du, jnp.zeros(h.N_NOISE)), target[t + 1])
+
+    sec, first, (c, _) = timed(jax.jit(plant.eval_seeds), K, W, repeats=repeats)
+    rows = [("expert's gains (gains plant)", sec, first - sec, float(jnp.mean(c)))]
+    for label, degree in (("true model", None), ("learned: polynomial 1 (linear)", 1),
+                          ("learned: polynomial 2, F = 325", 2)):  # fmt: skip
+        if degree is None:
+            model, params = true_model, jnp.zeros((S, 1))
+        else:
+            fmap = F.polynomial(21, 4, degree)
+            w = fit(nominal, fmap, data.dx, data.du, data.dx_next)
+            model = lambda p, dx, du, t, fmap=fmap: F.dynamics(nominal, fmap, p)(dx, du, t)  # noqa: E731
+            params = jnp.broadcast_to(w, (S, *w.shape))
+        mpc = mpc_plant(plant, control.replanner(
+            model, cost, jnp.zeros(4), horizon=50, every=10, iterations=5)).plant  # fmt: skip
+        sec, first, (c, _) = timed(jax.jit(mpc.eval_seeds), params, W, repeats=repeats)
+        rows.append((label, sec, first - sec, float(jnp.mean(c))))
+    return rows, S * n_test * plant.horizon
+
+
 # ----------------------------------------------------------------------------- (b) MPC rate
 def mpc_rate(model, params, every, episode, repeats):
     """Env steps per second of MPCController on 8 hanging pendulums (best of repeats)."""
@@ -288,6 +340,17 @@ def main():
             rate, first, cost = mpc_rate(model, p, every, episode, repeats)
             ref = ref or rate
             print(f"{label:34s}{every:6d}{rate:9.1f}{first:13.1f}{ref / rate:8.2f}x{cost:9.1f}")
+    rows, steps = mpc_plant_rows(repeats, args.quick)
+    print(
+        f"\nMPC in the helicopter's JAX loop (mpc_plant), hover test flights: {steps} steps, "
+        f"horizon 50, every 10, 5 iterations, median of {repeats}"
+    )
+    print(f"{'flown by':34s}{'[s]':>8s}{'steps/s':>11s}{'compile [s]':>13s}{'vs true':>9s}"
+          f"{'cost':>9s}")  # fmt: skip
+    for label, sec, compile_s, cost in rows:
+        ratio = sec / rows[1][1]
+        print(f"{label:34s}{sec:8.3f}{steps / sec:11.0f}{compile_s:13.1f}{ratio:8.2f}x"
+              f"{cost:9.1f}")  # fmt: skip
     print(
         f"\nvs true: the learned row's time over the true row's (per iteration for plans); "
         f"goal <= 2x. Total {time.perf_counter() - t_all:.0f} s."

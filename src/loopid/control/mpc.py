@@ -107,25 +107,25 @@ def mpc_rollout(
     Returns :class:`MPCRollout`. Vmappable over ``params``, ``x0`` and ``U0``; the checks read
     shapes only.
     """
-    horizon = _positive_int("horizon", horizon)
+    r = replanner(
+        model_dynamics, cost, U0, horizon=horizon, every=every, iterations=iterations,
+        alternatives=alternatives, alpha=alpha, tol=tol, atol=atol, alphas=alphas,
+        mu_init=mu_init, mu_min=mu_min, mu_max=mu_max, mu_factor=mu_factor,
+    )  # fmt: skip
     T = _positive_int("T", T)
-    every = _check_every(every, horizon)
-    iterations = _positive_int("iterations", iterations)
-    U0, m = _initial_actions(U0, horizon)
-    n, _ = _check_problem(model_dynamics, cost, params, x0, U0)
+    n, m = _check_problem(model_dynamics, cost, params, x0, r.U0)
     x = jax.ShapeDtypeStruct((n,), jnp.float64)
     u = jax.ShapeDtypeStruct((m,), jnp.float64)
     if dynamics_true is not None:
         if jax.eval_shape(dynamics_true, x, u, jnp.asarray(0)).shape != (n,):
             raise ValueError(f"dynamics_true(x0, u, t) must have shape {(n,)}")
     check_finite("x0", x0)
-    s = _settings(alphas, tol, atol, mu_init, mu_min, mu_max, mu_factor)
     x0 = jnp.asarray(x0, jnp.float64)
-    a = jnp.asarray(alpha, jnp.float64)
-    U_alt = _alternatives(alternatives, horizon, m)
+    a = jnp.asarray(r.alpha, jnp.float64)
     return _mpc_jit(
-        dynamics_true, model_dynamics, cost, T, every, iterations, params, x0, U0, a, s, 0, U_alt
-    )
+        dynamics_true, model_dynamics, cost, T, r.every, r.iterations, params, x0, r.U0, a,
+        r.settings, 0, r.alternatives,
+    )  # fmt: skip
 
 
 # ----------------------------------------------------------------------------- the re-planning step
@@ -287,10 +287,14 @@ class MPCController:
         mu_max: float = 1e10,
         mu_factor: float = 10.0,
     ):
-        self.horizon = _positive_int("horizon", horizon)
-        self.every = _check_every(every, self.horizon)
-        self.iterations = _positive_int("iterations", iterations)
-        self.U0, self.m = _initial_actions(U0, self.horizon)
+        r = replanner(
+            model_dynamics, cost, U0, horizon=horizon, every=every, iterations=iterations,
+            alternatives=alternatives, alpha=alpha, tol=tol, atol=atol, alphas=alphas,
+            mu_init=mu_init, mu_min=mu_min, mu_max=mu_max, mu_factor=mu_factor,
+        )  # fmt: skip
+        self.horizon, self.every, self.iterations, self.U0 = r.horizon, r.every, r.iterations, r.U0
+        self.m, self.alpha = r.U0.shape[1], r.alpha
+        self.alternatives, self.settings = r.alternatives, r.settings
         self.target = np.asarray(target, np.float64).reshape(-1)
         self.observe = None if observe is None else np.asarray(observe, np.int64)
         self.a_op = np.zeros(self.m) if a_op is None else np.asarray(a_op, np.float64)
@@ -298,9 +302,6 @@ class MPCController:
             raise ValueError(f"a_op must have shape [{self.m}], got {self.a_op.shape}")
         self.n = self.target.shape[0] + 1
         self.model, self.cost, self.stacked = model_dynamics, cost, bool(stacked)
-        self.alpha = float(alpha)
-        self.alternatives = _alternatives(alternatives, self.horizon, self.m)
-        self.settings = _settings(alphas, tol, atol, mu_init, mu_min, mu_max, mu_factor)
         self.set_params(params)
         self.reset()
 
