@@ -189,3 +189,18 @@ def test_the_cell_flies_mpc_on_each_seeds_model():
     np.testing.assert_allclose(evaluated[0, 0], min(float(total), s.cost_cap), rtol=1e-9)
     gains = family.evaluate(s, {"K": saved["K"]}, np.arange(3), 2)
     assert not np.allclose(gains, evaluated)
+
+    # loopid.load's controller (ReplanningController), called once a step from Python on seed
+    # 0's first test noise, flies the trajectory the cell's plant flew and charged
+    one = {k: v[0] for k, v in saved.items()} | {f"shared.{k}": v for k, v in
+                                                  family.shared(s, "dagger-t").items()}  # fmt: skip
+    _, controller = family.load(s, "dagger-t", one)
+    task, w = plant.task, np.asarray(noise[:, :, 0, 0])
+    qQ, qR = quadratic_form(task.Q), quadratic_form(task.R)
+    x, total = np.asarray(task.x0), 0.0
+    for t in range(400):
+        du = controller(x, t)
+        total += float(qQ(helicopter.to_error(x, task.target[t])) + qR(du))
+        x = np.asarray(helicopter.step(x, du, w[t]))
+    total += float(qQ(helicopter.to_error(x, task.target[400])))
+    np.testing.assert_allclose(total, costs[0, 0], rtol=1e-9)

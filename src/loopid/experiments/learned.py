@@ -6,6 +6,8 @@
   env: ``[o_t[observe] − o*; 1]``). Under the helicopter's ``latency`` reading (SPEC §5.1) it acts
   on the error observed ``delay`` steps earlier, as the loop's controller did, and so keeps those
   steps in memory (:meth:`GainController.reset` at an episode's start; step 0 resets it).
+- :class:`ReplanningController`: model-predictive control on a saved model, one step at a time:
+  what a helicopter cell that flew MPC flew (:mod:`loopid.algorithms.mpc_plant`).
 - :class:`TableController`: a finite MDP's policy, the action of highest probability in a state.
 - :class:`LinearModel`: the linear offset model, nominal plus learned offsets ``W``; its
   :meth:`LinearModel.predict` is the learner's own prediction
@@ -109,6 +111,48 @@ class GainController:
         (:meth:`GymnasiumPolicy.reset` after ``env.reset``); actions clipped to
         ``action_space`` when given."""
         return GymnasiumPolicy(self, action_space)
+
+
+class ReplanningController:
+    """``action_t = a_op + Δu_t`` by MPC on a learned model: at t = 0 and every ``every`` steps
+    after it plans ``H`` steps ahead from ``Δx_t = error(obs, t)`` (iLQR, warm-started from the
+    previous plan; :func:`loopid.control.mpc.replan`), and in between applies the plan's
+    feedback ``Δu = U_j − K_j(Δx − X_j)``: the controller a cell's MPC plant flew
+    (:mod:`loopid.algorithms.mpc_plant`), one call a step. ``replanner``:
+    :func:`loopid.control.replanner`; ``params``: the model's parameters; ``n``: the size of
+    ``Δx``. Step 0 starts an episode (:meth:`reset`)."""
+
+    def __init__(self, replanner, params, error: Callable[[Any, int], np.ndarray], a_op, n: int):
+        import jax
+
+        from loopid.control.mpc import empty_plan, local_action, replan
+
+        self.replanner, self.params, self.error = replanner, params, error
+        self.a_op = np.asarray(a_op, np.float64)
+        r = replanner
+        self._replan = jax.jit(lambda p, x, t, prev, fresh, shift: replan(r, p, x, t, prev, fresh,
+                                                                          shift))  # fmt: skip
+        self._act = jax.jit(lambda plan, x, j: local_action(r, plan, x, j))
+        self._empty = empty_plan(r, int(n))
+        self.reset()
+
+    def reset(self) -> None:
+        """Forget the plan (an episode starts)."""
+        self._plan, self._t_plan = None, 0
+
+    def __call__(self, obs, t: int) -> np.ndarray:
+        """The action at step ``t`` (0-based) for observation ``obs``."""
+        t = int(t)
+        if t < 0:
+            raise ValueError(f"the step index t must be >= 0, got {t}")
+        dx = np.asarray(self.error(np.asarray(obs, np.float64), t), np.float64)
+        if t == 0 or self._plan is None:
+            self._plan = self._replan(self.params, dx, t, self._empty, True, 0)
+            self._t_plan = t
+        elif t - self._t_plan >= self.replanner.every:
+            self._plan = self._replan(self.params, dx, t, self._plan, False, t - self._t_plan)
+            self._t_plan = t
+        return self.a_op + np.asarray(self._act(self._plan, dx, t - self._t_plan))
 
 
 class TableController:

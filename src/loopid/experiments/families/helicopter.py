@@ -169,16 +169,22 @@ def _mpc(key: Scenario):
     ``planner_iterations`` iLQR iterations, first from Δu = 0, the trim) and the loop's
     controller, the seed's model parameters."""
     from loopid.algorithms.mpc_plant import mpc_plant
+
+    st, model = _setup(key), _model(key)
+    return mpc_plant(st.plant, _replanner(key)), lambda state, K: model.params(state)
+
+
+def _replanner(key: Scenario):
+    """The MPC settings of :func:`_mpc` (:func:`loopid.control.replanner`)."""
     from loopid.control import quadratic_cost, replanner
 
     st, model = _setup(key), _model(key)
     task = st.plant.task
-    planner = replanner(
+    return replanner(
         model.dynamics, quadratic_cost(task.Q, task.R), np.zeros(helicopter.N_ACTION),
         horizon=key.planner_horizon or st.plant.horizon, every=key.planner_every,
         iterations=key.planner_iterations, alternatives=_alternatives(key),
     )  # fmt: skip
-    return mpc_plant(st.plant, planner), lambda state, K: model.params(state)
 
 
 def agent(s: Scenario) -> Agent:
@@ -283,8 +289,15 @@ def figure(table, path, configs) -> None:
 
 def load(s: Scenario, method: str, arrays: dict):
     """One seed's saved model and controller (:mod:`loopid.experiments.saved`): the gains act on
-    ``to_error(x_t, x*_t)`` and give the control change Δu (the Gymnasium envs' action)."""
-    from loopid.experiments.learned import FeatureModel, GainController, LinearModel
+    ``to_error(x_t, x*_t)`` and give the control change Δu (the Gymnasium envs' action); where
+    the cell flew MPC, the controller re-plans on the saved model
+    (:class:`~loopid.experiments.learned.ReplanningController`)."""
+    from loopid.experiments.learned import (
+        FeatureModel,
+        GainController,
+        LinearModel,
+        ReplanningController,
+    )
 
     st = setup(s)
     target = np.asarray(st.plant.task.target)
@@ -295,6 +308,11 @@ def load(s: Scenario, method: str, arrays: dict):
 
     delay = st.plant.task.delay if s.delay_mode == "latency" else 0
     controller = GainController(arrays["K"], error, np.zeros(helicopter.N_ACTION), delay)
+    if _flew_mpc(s, arrays):
+        key = program_key(s)
+        params = _model(key).restore(arrays)
+        zero = np.zeros(helicopter.N_ACTION)
+        controller = ReplanningController(_replanner(key), params, error, zero, helicopter.N_STATE)
     model = None  # the MLP's network is saved (mlp.*) but not rebuilt here
     if "W" in arrays or "W_features" in arrays:  # the saved nominal, else the scenario's
         A, B = arrays.get("shared.A", st.nominal.A), arrays.get("shared.B", st.nominal.B)
