@@ -61,7 +61,9 @@ def policy_samples(
     mode: str = "trajectory",
     gamma: float = 0.99,
 ) -> Transitions:
-    """``count`` transitions from running the policy ``K: [horizon, m, n]`` (see module doc)."""
+    """``count`` transitions from running the policy ``K`` (see module doc): what
+    ``plant.rollout`` flies, gains ``[horizon, m, n]`` or, for a plant flown by MPC
+    (:mod:`loopid.algorithms.mpc_plant`), the model's parameters."""
     if mode == "trajectory":
         k_roll, k_draw = jax.random.split(key)
         runs = -(-count // plant.horizon)
