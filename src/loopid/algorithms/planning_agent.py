@@ -140,6 +140,22 @@ def mlp_model(nominal: LinearOffsetModel, learner: MLPLearner, seed: int = 0) ->
     )  # fmt: skip
 
 
+def holds_model(arrays: dict) -> bool:
+    """Whether a cell's saved arrays hold a learned feature model or MLP (what
+    :attr:`ModelClass.saved` writes: ``W_features``, ``mlp.*``); the expert's and the
+    policy-gradient baseline's hold gains only."""
+    return any(k == "W_features" or k.startswith("mlp.") for k in arrays)
+
+
+def restore_seeds(model: ModelClass, arrays: dict):
+    """Every seed's parameters, leaves ``[S, ...]``, from the seeds' saved arrays ``{name:
+    [S, ...]}`` (:attr:`ModelClass.restore` seed by seed; ``shared.*`` and ``seeds`` skipped)."""
+    own = {k: v for k, v in arrays.items() if not k.startswith("shared.") and k != "seeds"}
+    S = len(next(iter(own.values())))
+    one = [model.restore({k: v[i] for k, v in own.items()}) for i in range(S)]
+    return jax.tree.map(lambda *a: jnp.stack(a), *one)
+
+
 def planning_agent(model: ModelClass, plan: Callable[[Any], tuple[jax.Array, jax.Array]]) -> Agent:
     """An :class:`~loopid.algorithms.loop.Agent` of ``model`` solved by ``plan``.
 

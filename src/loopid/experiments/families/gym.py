@@ -39,7 +39,6 @@ from pathlib import Path
 from typing import Any, NamedTuple
 
 import jax
-import jax.numpy as jnp
 import numpy as np
 import pyarrow as pa
 
@@ -352,13 +351,13 @@ class Learner(NamedTuple):
     """A scenario's agent, its compiled host cell and what flies its policy's episodes
     (``controller(learner_states, K) -> policy``; None: the gains). Under ``[planner] kind =
     "mpc"``: ``mpc(params) -> policy``, the MPC of the models ``params`` (a leading seed axis),
-    and ``restore(saved) -> params`` of one seed's saved arrays (``loopid evaluate``)."""
+    and ``model``, the model class whose saved arrays it re-plans on (``loopid evaluate``)."""
 
     agent: Any
     cell: Any
     controller: Any = None
     mpc: Any = None
-    restore: Any = None
+    model: Any = None
 
 
 @lru_cache(maxsize=4)
@@ -435,7 +434,7 @@ def _planning_learner(s: GymScenario, shape: Shape, cost, nominal) -> Learner:
     def controller(states, K):
         return mpc(jax.vmap(mc.params)(states))
 
-    return Learner(agent, cell, controller, mpc, mc.restore)
+    return Learner(agent, cell, controller, mpc, mc)
 
 
 def _exploration(s: GymScenario, system: GymSystem) -> Exploration:
@@ -576,11 +575,11 @@ def _saved_policy(learner: Learner, system: GymSystem, arrays: dict):
     """What the seeds' saved arrays ``{name: [S, ...]}`` fly: MPC re-planning on each seed's
     saved model where the cell flew MPC (``[planner] kind = "mpc"`` and a learned model
     saved), else the gains ``K``."""
-    if learner.mpc is None or not ("W_features" in arrays or "mlp.0.W" in arrays):
+    from loopid.algorithms.planning_agent import holds_model, restore_seeds
+
+    if learner.mpc is None or not holds_model(arrays):
         return system.linear_policy(np.asarray(arrays["K"]))
-    model = {k: v for k, v in arrays.items() if not k.startswith("shared.") and k != "seeds"}
-    one = [learner.restore({k: v[i] for k, v in model.items()}) for i in range(len(arrays["K"]))]
-    return learner.mpc(jax.tree.map(lambda *a: jnp.stack(a), *one))
+    return learner.mpc(restore_seeds(learner.model, arrays))
 
 
 def evaluate(s: GymScenario, arrays: dict, seeds, episodes: int, env=None) -> np.ndarray:

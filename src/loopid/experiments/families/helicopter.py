@@ -337,12 +337,15 @@ def evaluate(s: Scenario, arrays: dict, seeds, episodes: int, env=None) -> np.nd
     """Capped test costs ``[S, episodes]`` of the saved policies on fresh noise
     (``fold_in(key(seed), 4)``), flown as the run flew them (its delay reading included): the
     gains ``arrays["K"] [S, T, m, n]``, or under ``planner_kind = "mpc"`` MPC re-planning on
-    each seed's saved model (:func:`_saved_params`)."""
+    each seed's saved model."""
     if env is not None:
         raise ValueError(f"--env {env!r} applies to gym runs, not to {s.name}")
     plant, policy = setup(s).plant, jax.numpy.asarray(arrays["K"])
     if _flew_mpc(s, arrays):
-        plant, policy = _mpc(program_key(s))[0].plant, _saved_params(s, arrays)
+        from loopid.algorithms.planning_agent import restore_seeds
+
+        plant = _mpc(program_key(s))[0].plant
+        policy = restore_seeds(_model(program_key(s)), arrays)
     noise = noise_program(plant, episodes, "last", EVALUATE)(seed_keys(seeds)).test
     costs, _ = jax.jit(plant.eval_seeds)(policy, noise)
     return np.asarray(costs)
@@ -351,17 +354,9 @@ def evaluate(s: Scenario, arrays: dict, seeds, episodes: int, env=None) -> np.nd
 def _flew_mpc(s: Scenario, arrays: dict) -> bool:
     """Whether the cell whose saved arrays these are flew MPC: ``planner_kind = "mpc"`` and a
     learned model saved (the expert and the policy-gradient baseline fly gains)."""
-    return s.planner_kind == "mpc" and ("W_features" in arrays or "mlp.0.W" in arrays)
+    from loopid.algorithms.planning_agent import holds_model
 
-
-def _saved_params(s: Scenario, arrays: dict):
-    """The learned models' parameters ``[S, ...]`` from the seeds' saved arrays
-    ``{name: [S, ...]}`` (:attr:`loopid.algorithms.planning_agent.ModelClass.restore`)."""
-    restore = _model(program_key(s)).restore
-    S = len(arrays["K"])
-    one = [restore({k: v[i] for k, v in arrays.items() if not k.startswith("shared.")})
-           for i in range(S)]  # fmt: skip
-    return jax.tree.map(lambda *a: jax.numpy.stack(a), *one)
+    return s.planner_kind == "mpc" and holds_model(arrays)
 
 
 def _flights(run_dir, s: Scenario, methods, seed: int) -> dict:
