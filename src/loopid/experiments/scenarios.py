@@ -77,9 +77,9 @@ class Scenario(model_planner.ModelPlanner):
     dagger_fraction: float = 0.5
     stop_norm: float = 5.0
     nu_pending: str = "hold"
-    delay_mode: str = "fifo"
-    funnel_nominal: str = "spec"
-    pg_samples: str = "transitions"
+    delay_mode: str = "latency"
+    funnel_nominal: str = "heading"
+    pg_samples: str = "rollouts"
     nu_state_var: float = 0.0025
     nu_action_var: float = 0.0001
     expert_action_var: float = 0.0001
