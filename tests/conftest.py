@@ -31,6 +31,7 @@ def tree_allclose(a, b, *, rtol=1e-10, atol=1e-12) -> bool:
 SLOWEST_FILES = (
     "test_cli.py",  # reproduce --quick and study --quick
     "test_cli_executors.py",  # a killed run, worker processes, Ray
+    "test_readings.py",  # reproduce --quick --readings literal against the pinned table
     "test_chunks.py",
     "test_nonlinear.py",
     "test_family_gym.py",

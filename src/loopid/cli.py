@@ -6,7 +6,7 @@ Commands:
   loopid run SCENARIO    one scenario's methods on every seed (loopid run --help lists the
                          scenarios of every family)
   loopid reproduce       the paper's Figure 2, every panel and method, and the finite-MDP study
-  loopid study           every reading of the paper's open details (SPEC 5), one at a time
+  loopid study           every reading of the paper's open details, one at a time
   loopid evaluate DIR    the run's saved controllers on fresh test episodes
   loopid animate DIR     an animated GIF of saved policies flying
   loopid plot DIR        figure.png and report.md again from DIR/results.parquet
@@ -180,18 +180,26 @@ def _protocol_changes(quick: bool, seeds: int | None) -> dict:
     return changes
 
 
-def scenario_from_options(name: str, config: Path | None, options: dict, assignments: list[str]):
+def scenario_from_options(
+    name: str,
+    config: Path | None,
+    options: dict,
+    assignments: list[str],
+    readings: str | None = None,
+):
     """The scenario ``loopid run NAME`` runs, and its methods (None: the family's default).
 
-    Fields come from the family's named scenario, then the --config file, then --set
-    FIELD=VALUE, then the common options (--seeds, --iterations, ...): later ones win. An
-    option whose field the family does not have is refused with one line."""
+    Fields come from the family's named scenario, then the --config file, then the --readings
+    preset, then --set FIELD=VALUE, then the common options (--seeds, --iterations, ...): later
+    ones win. An option whose field the family does not have is refused with one line."""
     from loopid.experiments.config import parse_assignment
     from loopid.experiments.families import family_named
 
     family = family_named(name)
     fields, methods = family.read_file(config) if config is not None else ({}, None)
     allowed = family.field_names()
+    if readings is not None:
+        fields.update(_preset(readings, allowed, name))
     for text in assignments:
         key, value = parse_assignment(text)
         if key not in allowed:
@@ -205,6 +213,26 @@ def scenario_from_options(name: str, config: Path | None, options: dict, assignm
             raise ValueError(f"{flag} does not apply to {name} (a {family.name} scenario)")
         fields[key] = value
     return family, family.build(name, fields), methods
+
+
+def _preset(readings: str, allowed, name: str) -> dict:
+    """The reading fields of preset ``readings`` (:mod:`loopid.experiments.readings`); one line
+    for an unknown preset or a scenario without readings."""
+    from loopid.experiments.readings import READING_FIELDS, preset
+
+    fields = preset(readings)
+    if not set(READING_FIELDS) <= set(allowed):
+        raise ValueError(f"--readings applies to the helicopter scenarios, not {name!r}")
+    return fields
+
+
+READINGS = typer.Option(
+    None,
+    "--readings",
+    help="Preset of the readings of the details the paper leaves open: probable (the default: "
+    "delay_mode=latency, funnel_nominal=heading, pg_samples=rollouts) or literal (fifo, spec, "
+    "transitions). It overrides --config; --set overrides it.",
+)
 
 
 def _scenario_list() -> str:
@@ -238,8 +266,9 @@ def run(
     assignments: list[str] = typer.Option(
         [],
         "--set",
-        help="FIELD=VALUE: set any scenario field (repeatable), e.g. --set delay_mode=latency.",
+        help="FIELD=VALUE: set any scenario field (repeatable), e.g. --set delay_mode=fifo.",
     ),
+    readings: str = READINGS,
     out: Path = typer.Option(None, "--out", help="Run directory (default: runs/SCENARIO)."),
     quiet: bool = QUIET,
     executor: str = EXECUTOR,
@@ -250,8 +279,8 @@ def run(
     """Run one scenario's methods on every seed into a run directory.
 
     Every scenario takes the same options. Its fields come from its defaults, then --config
-    FILE, then --set FIELD=VALUE, then --seeds, --iterations, --samples and --test-trajectories
-    (later ones win).
+    FILE, then --readings PRESET, then --set FIELD=VALUE, then --seeds, --iterations, --samples
+    and --test-trajectories (later ones win).
     """
     from loopid.experiments.executors import check_executor
 
@@ -263,7 +292,7 @@ def run(
     options = {k: v for k, v in options.items() if v is not None}
     check_executor(executor, ray_address)
     workers = _workers(executor, workers)
-    family, s, chosen = scenario_from_options(scenario, config, options, assignments)
+    family, s, chosen = scenario_from_options(scenario, config, options, assignments, readings)
     if methods is not None:
         chosen = _methods(methods)
     elif chosen is None:
@@ -281,6 +310,7 @@ def reproduce(
     quick: bool = typer.Option(
         False, "--quick", help="Smoke run: every panel and method, 2 seeds, 4 iterations."
     ),
+    readings: str = READINGS,
     quiet: bool = QUIET,
     executor: str = EXECUTOR,
     ray_address: str = RAY_ADDRESS,
@@ -288,16 +318,20 @@ def reproduce(
     memory: float = MEMORY,
 ) -> None:
     """The paper's Figure 2 (hover, hover with delay 1, the nose-in funnel; every method) in
-    OUT, and the finite-MDP study in OUT/mdp."""
+    OUT, and the finite-MDP study in OUT/mdp. --readings literal: under the literal readings
+    of the paper's text instead of the probable ones."""
     from loopid.algorithms.methods import METHODS
     from loopid.experiments.executors import check_executor
     from loopid.experiments.families import mdp
+    from loopid.experiments.readings import READING_FIELDS
     from loopid.experiments.scenarios import SCENARIOS
 
     t0 = time.perf_counter()
     check_executor(executor, ray_address)
     workers = _workers(executor, workers)
     changes = _protocol_changes(quick, seeds)
+    if readings is not None:
+        changes.update(_preset(readings, READING_FIELDS, "reproduce"))
     scenarios = [s.replace(**changes) for s in SCENARIOS.values()]
     _execute(
         out, scenarios, list(METHODS), quiet=quiet, executor=executor, ray_address=ray_address,
@@ -331,8 +365,9 @@ def study(
     workers: int = WORKERS,
     memory: float = MEMORY,
 ) -> None:
-    """Every reading of the paper's open details (SPEC 5), one factor at a time: study.md,
-    study.parquet and one figure per group of readings."""
+    """Every reading of the paper's open details, one factor at a time from the probable
+    readings, and the literal preset: study.md, study.parquet and one figure per group of
+    readings."""
     from loopid.experiments.execute import check_cells, resolved_config, run_cells
     from loopid.experiments.executors import check_executor
     from loopid.experiments.results import write_atomic

@@ -102,7 +102,7 @@ def test_artifacts_are_described_and_a_corrupt_one_is_named(hover_run, tmp_path)
     info = json.loads((out / "cells" / "hover__dagger-t.json").read_text())
     assert info["family"] == "helicopter" and info["seeds"] == [0, 1]
     assert info["arrays"]["K"]["shape"] == [2, 400, 4, 21]
-    assert info["config"]["task"] == "hover" and info["config"]["delay_mode"] == "fifo"
+    assert info["config"]["task"] == "hover" and info["config"]["delay_mode"] == "latency"
     assert info["arrays"]["shared.A"]["shape"] == [21, 21]  # the nominal the offsets add to
     expert = json.loads((out / "cells" / "hover__expert.json").read_text())
     assert set(expert["arrays"]) == {"K"}  # no model: nothing else

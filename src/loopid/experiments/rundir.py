@@ -12,7 +12,8 @@ Layout of ``DIR``::
 
 A cell file exists only once its cell has finished, so a killed run loses nothing finished, and
 rerunning the same command skips the finished cells. A directory whose ``config.toml`` differs
-from the new run's configuration is refused rather than mixed.
+from the new run's configuration is refused rather than mixed; where only the readings differ
+(a run made under another preset), the refusal says which ``--readings`` continues it.
 """
 
 import tomllib
@@ -22,6 +23,7 @@ import pyarrow as pa
 import tomli_w
 
 from loopid.experiments.config import seeds_from_value, seeds_value
+from loopid.experiments.readings import continue_hint, readings_of
 from loopid.experiments.results import concat, metadata, read_table, write_atomic
 
 
@@ -31,11 +33,17 @@ def to_toml(config: dict) -> str:
 
 
 def _normal(config: dict) -> dict:
-    """``config`` with its seeds in today's form (older ``config.toml`` files list them all)."""
+    """``config`` in today's form: its seeds as :func:`seeds_value` writes them (older
+    ``config.toml`` files list them all), and a helicopter scenario's reading fields spelled out
+    (older ones lack them: they ran the literal readings, :func:`readings_of`)."""
     run = dict(config.get("run", {}))
     if "seeds" in run:
         run["seeds"] = seeds_value(seeds_from_value(run["seeds"]))
-    return {**config, "run": run}
+    scenarios = {
+        name: {**s, **readings_of(s)} if run.get("family") == "helicopter" else s
+        for name, s in config.get("scenario", {}).items()
+    }
+    return {**config, "run": run, "scenario": scenarios}
 
 
 class RunDir:
@@ -54,6 +62,12 @@ class RunDir:
             old = tomllib.loads(cfg_file.read_text())
             new = tomllib.loads(to_toml(config))
             if _normal(old) != _normal(new):
+                hint = continue_hint(_normal(old), _normal(new))
+                if hint is not None:
+                    raise ValueError(
+                        f"{self.path} holds a run made under other readings; continue it with "
+                        f"{hint}, or use another --out directory"
+                    )
                 raise ValueError(
                     f"{self.path} holds a run with a different configuration; "
                     "use another --out directory"

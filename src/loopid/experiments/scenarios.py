@@ -19,6 +19,7 @@ from loopid.algorithms.plant import check_delay_reading
 from loopid.algorithms.policy_gradient import SAMPLES_MODES as PG_SAMPLES
 from loopid.experiments import model_planner
 from loopid.experiments.config import check_int, check_number, read_flat_file, replaced
+from loopid.experiments.readings import PRESETS, READING_FIELDS, reading_text, readings_line
 from loopid.systems.funnel_nominal import FUNNEL_NOMINALS
 from loopid.systems.tasks import TASK_DELAYS, TASK_NAMES
 
@@ -36,21 +37,16 @@ class Scenario(model_planner.ModelPlanner):
       seeds: how many seeds (0..seeds−1).
       noise_std: process-noise std on force and torque (None: the task's).
       delay: actuation delay in steps (None: the task's).
-      pads: funnel only: the 600-step target with hover pads (False: the 400-step circle).
       sampling: the policy half's sampling mode, ``trajectory`` or ``geometric``.
       gamma: stopping parameter of ``geometric`` sampling (stop w.p. 1 − γ per step).
       dagger_fraction: DAgger's probability that a slot comes from the current policy.
       stop_norm: training trajectories restart when ‖[Δx; Δu]‖₂ exceeds this.
-      nu_pending: delayed ν queries under ``fifo`` (SPEC §3, §5.1): ``hold`` (pending FIFO filled
-        with the action), ``zero`` (empty) or ``rollout`` (ν_e/ν_en: the expert's own recorded
-        transitions, no query).
-      delay_mode: how a delay acts (SPEC §5.1): ``fifo`` (the commanded change acts d steps later;
-        the learner records the command) or ``latency`` (the policy acts at once on the state
-        observed d steps earlier; the learner records the true transition).
-      funnel_nominal: the funnel's nominal model (SPEC §5.2): ``spec``, ``no-increment``,
-        ``drift`` or ``heading`` (:mod:`loopid.systems.funnel_nominal`).
-      pg_samples: what the policy-gradient baseline's m samples per iteration are (SPEC §5.3):
-        ``transitions`` or ``rollouts`` (one perturbed-gain rollout each).
+      nu_pending, delay_mode, funnel_nominal, pads, pg_samples: the readings of the details the
+        paper leaves open (:mod:`loopid.experiments.readings`); their defaults are the preset
+        ``probable``: ``delay_mode = "latency"`` (the policy acts at once on the state observed
+        d steps earlier; the learner records the true transition), ``nu_pending = "hold"``
+        (used under ``fifo`` only), ``funnel_nominal = "heading"``, ``pads = True`` and
+        ``pg_samples = "rollouts"`` (one perturbed-gain rollout per sample).
       nu_state_var, nu_action_var: ν_t's state and action noise variances.
       expert_action_var: ν_en's action noise variance.
       ftrl_lambda: λ of the FTRL regulariser (λ/√n)‖W‖²_F.
@@ -71,15 +67,15 @@ class Scenario(model_planner.ModelPlanner):
     seeds: int = 20
     noise_std: float | None = None
     delay: int | None = None
-    pads: bool = True
+    pads: bool = PRESETS["probable"]["pads"]
     sampling: str = "trajectory"
     gamma: float = 0.99
     dagger_fraction: float = 0.5
     stop_norm: float = 5.0
-    nu_pending: str = "hold"
-    delay_mode: str = "latency"
-    funnel_nominal: str = "heading"
-    pg_samples: str = "rollouts"
+    nu_pending: str = PRESETS["probable"]["nu_pending"]
+    delay_mode: str = PRESETS["probable"]["delay_mode"]
+    funnel_nominal: str = PRESETS["probable"]["funnel_nominal"]
+    pg_samples: str = PRESETS["probable"]["pg_samples"]
     nu_state_var: float = 0.0025
     nu_action_var: float = 0.0001
     expert_action_var: float = 0.0001
@@ -212,15 +208,7 @@ def read_config(path) -> tuple[dict, list[str] | None]:
     return read_flat_file(path, FIELDS, tables=model_planner.TABLES)
 
 
-#: The scenario fields that are readings of the paper's open details (SPEC §5).
-READING_FIELDS = ("delay_mode", "nu_pending", "funnel_nominal", "pads", "pg_samples")
-
-
-def reading_text(v) -> str:
-    """A reading's value as text (``true``/``false`` for booleans, as in TOML)."""
-    return ("true" if v else "false") if isinstance(v, bool) else str(v)
-
-
-def readings_line(s: Scenario) -> str:
-    """``delay_mode = fifo, nu_pending = hold, ...``: the readings ``s`` runs under."""
-    return ", ".join(f"{k} = {reading_text(getattr(s, k))}" for k in READING_FIELDS)
+__all__ = [
+    "FIELDS", "READING_FIELDS", "SCENARIOS", "Scenario", "from_dict", "read_config",
+    "reading_text", "readings_line", "scenario", "validate",
+]  # fmt: skip

@@ -1,38 +1,40 @@
-"""The reading study (``loopid study``): every reading of SPEC §5, one factor at a time.
+"""The reading study (``loopid study``): every reading of the paper's open details.
 
-The paper leaves some details of its experiments open (SPEC §5); each defensible reading is a
-scenario field (``delay_mode``, ``nu_pending``, ``funnel_nominal``, ``pads``, ``pg_samples``).
-A :class:`Reading` changes fields of the paper's panels (:data:`SCENARIOS`) away from the default
-and names the panels and methods whose results the change can touch. The study is one run
-directory (:func:`loopid.experiments.execute.run_cells`: resume, atomic cells, workers, Ray)
-holding, for every reading, exactly those cells, as the scenario ``PANEL-ID`` (the default
-reading's scenarios keep the panels' names); every other cell of a reading is the default's,
+The paper leaves some details of its experiments open; each defensible reading is a scenario
+field (``delay_mode``, ``nu_pending``, ``funnel_nominal``, ``pads``, ``pg_samples``;
+:mod:`loopid.experiments.readings`). A :class:`Reading` changes fields of the paper's panels
+(:data:`SCENARIOS`, the preset ``probable``) and names the panels and methods whose results the
+change can touch. The study runs each reading one factor at a time from ``probable``, and the
+preset ``literal`` as a whole. It is one run directory
+(:func:`loopid.experiments.execute.run_cells`: resume, atomic cells, workers, Ray) holding, for
+every reading, exactly those cells, as the scenario ``PANEL-ID`` (the default reading's
+scenarios keep the panels' names); every other cell of a reading is the default's or a part's,
 which is the same computation (a method whose inputs the field does not reach). The default
 reading is the run of ``loopid reproduce`` itself: ``--reproduce DIR`` copies that run's
 finished cells of the same configuration (:func:`share_cells`) instead of computing them again.
 
-Why a method is untouched by a field (the cells a reading inherits from the default):
+Why a method is untouched by a field (the cells a reading inherits):
 
 - ``delay_mode``: the expert L and the policy gradient fly fixed gains, for which ``fifo`` and
   ``latency`` are the same closed loop (the test cost's ``ΔuᵀRΔu`` term sums commanded changes
   under ``fifo`` and applied ones under ``latency``: equal to ~1e-12 relative; the policy
   gradient's own training rollouts are FIFO rollouts of that closed loop);
-- ``nu_pending``: only ν queries change: L and PG draw none; under ``rollout`` ν_t is queried as
-  under ``hold``, so D_t and B_t are untouched too;
+- ``nu_pending`` (used under ``fifo`` only, so its readings also set ``delay_mode = fifo``):
+  only ν queries change: L and PG draw none; under ``rollout`` ν_t is queried as under
+  ``hold``, so D_t and B_t are the ``fifo`` reading's;
 - ``funnel_nominal``: the expert is iLQR on the true simulator (no nominal);
 - ``pg_samples``: only the policy gradient.
 
-A *combination* reading (``favoured``: every reading the evidence favours, README "Readings")
-takes each cell from the one-factor reading that changes it, which is exact because its parts
-touch disjoint cells.
+The ``literal`` reading takes each cell from the one-factor reading that changes it (``fifo``,
+``spec``, ``pg-transitions``), which is exact because those parts touch disjoint cells, except
+the funnel's policy gradient, which two of its fields reach, and which it runs itself.
 
 Outputs in ``OUT``, besides the run directory's own files: ``study.parquet`` (every reading's
 table, each panel under its own name, with the columns ``reading`` and the reading fields),
-``study.md`` (per reading: final
-medians per panel and method, the five findings of SPEC §4.5 computed from the table, and for
-the funnel each nominal's one-step prediction error along the expert's flight) and one figure per
-figure group (``study_delay.png``, ``study_funnel.png``, ``study_pg.png``,
-``study_favoured.png``, in the layout of Figure 2).
+``study.md`` (per reading: final medians per panel and method, the paper's five findings
+computed from the table, and for the funnel each nominal's one-step prediction error along the
+expert's flight) and one figure per figure group (``study_delay.png``, ``study_funnel.png``,
+``study_pg.png``, ``study_literal.png``, in the layout of Figure 2).
 """
 
 from collections.abc import Sequence
@@ -45,15 +47,17 @@ import pyarrow.compute as pc
 
 from loopid.algorithms.methods import LEARNING_METHODS, METHODS
 from loopid.experiments.config import seeds_from_value
+from loopid.experiments.readings import PRESETS, READING_FIELDS, reading_text
 from loopid.experiments.results import concat, write_atomic_bytes
-from loopid.experiments.scenarios import READING_FIELDS, SCENARIOS, Scenario, reading_text
+from loopid.experiments.scenarios import SCENARIOS, Scenario
 
 
 class Reading(NamedTuple):
     """One reading: ``id`` (a directory name), ``figure`` (which ``study_FIGURE.png`` draws it),
-    ``label``, the field ``changes`` away from the default, the ``panels`` (scenario names) and
-    ``methods`` whose cells it runs, the SPEC section it comes from, and for a combination its
-    ``parts`` (ids of one-factor readings whose cells it takes)."""
+    ``label``, the field ``changes`` away from the default, the ``panels`` (scenario names) its
+    table covers, the ``methods`` whose cells it runs (on ``runs_on`` panels; None: all of
+    ``panels``), and ``parts``: ids of readings whose cells it takes where it runs none of its
+    own (a combination, or a reading whose other cells equal another reading's)."""
 
     id: str
     figure: str
@@ -61,72 +65,86 @@ class Reading(NamedTuple):
     changes: dict
     panels: tuple[str, ...]
     methods: tuple[str, ...]
-    spec: str
     parts: tuple[str, ...] = ()
+    runs_on: tuple[str, ...] | None = None
+
+    def runs(self, panel: str, method: str) -> bool:
+        """Whether this reading computes the cell (``panel``, ``method``) itself."""
+        return method in self.methods and panel in (self.runs_on or self.panels)
 
 
 ALL_PANELS = tuple(SCENARIOS)
 NU_E_METHODS = ("dagger-e", "dagger-en", "batch-e", "batch-en", "abbeel")
+FIFO = {"delay_mode": "fifo"}
 
 READINGS: tuple[Reading, ...] = (
-    Reading("default", "default", "default (SPEC §3-4)", {}, ALL_PANELS, METHODS, "§4"),
+    Reading("probable", "default", "probable (the default)", {}, ALL_PANELS, METHODS),
     Reading(
-        "latency", "delay", "delay_mode = latency", {"delay_mode": "latency"},
-        ("hover-delay",), LEARNING_METHODS, "§5.1",
+        "literal", "literal", "literal: delay_mode = fifo, funnel_nominal = spec, "
+        "pg_samples = transitions", dict(PRESETS["literal"]), ALL_PANELS, ("pg",),
+        parts=("fifo", "spec", "pg-transitions"), runs_on=("funnel",),
     ),
     Reading(
-        "nu-zero", "delay", "nu_pending = zero", {"nu_pending": "zero"},
-        ("hover-delay",), LEARNING_METHODS, "§5.1",
+        "fifo", "delay", "delay_mode = fifo", FIFO, ("hover-delay",), LEARNING_METHODS,
     ),
     Reading(
-        "nu-rollout", "delay", "nu_pending = rollout", {"nu_pending": "rollout"},
-        ("hover-delay",), NU_E_METHODS, "§5.1",
+        "nu-zero", "delay", "delay_mode = fifo, nu_pending = zero",
+        {**FIFO, "nu_pending": "zero"}, ("hover-delay",), LEARNING_METHODS,
+    ),
+    Reading(
+        "nu-rollout", "delay", "delay_mode = fifo, nu_pending = rollout",
+        {**FIFO, "nu_pending": "rollout"}, ("hover-delay",), NU_E_METHODS, parts=("fifo",),
+    ),
+    Reading(
+        "spec", "funnel", "funnel_nominal = spec", {"funnel_nominal": "spec"},
+        ("funnel",), (*LEARNING_METHODS, "pg"),
     ),
     Reading(
         "no-increment", "funnel", "funnel_nominal = no-increment",
-        {"funnel_nominal": "no-increment"}, ("funnel",), (*LEARNING_METHODS, "pg"), "§5.2",
+        {"funnel_nominal": "no-increment"}, ("funnel",), (*LEARNING_METHODS, "pg"),
     ),
     Reading(
         "drift", "funnel", "funnel_nominal = drift", {"funnel_nominal": "drift"},
-        ("funnel",), (*LEARNING_METHODS, "pg"), "§5.2",
+        ("funnel",), (*LEARNING_METHODS, "pg"),
     ),
+    Reading("no-pads", "funnel", "pads = false", {"pads": False}, ("funnel",), METHODS),
     Reading(
-        "heading", "funnel", "funnel_nominal = heading", {"funnel_nominal": "heading"},
-        ("funnel",), (*LEARNING_METHODS, "pg"), "§5.2",
-    ),
-    Reading("no-pads", "funnel", "pads = false", {"pads": False}, ("funnel",), METHODS, "§5.2"),
-    Reading(
-        "pg-rollouts", "pg", "pg_samples = rollouts", {"pg_samples": "rollouts"}, ALL_PANELS,
-        ("pg",), "§5.3",
-    ),
-    Reading(
-        "favoured", "favoured", "favoured: delay_mode = latency, pg_samples = rollouts",
-        {"delay_mode": "latency", "pg_samples": "rollouts"}, ALL_PANELS, (), "README",
-        parts=("latency", "pg-rollouts"),
+        "pg-transitions", "pg", "pg_samples = transitions", {"pg_samples": "transitions"},
+        ALL_PANELS, ("pg",),
     ),
 )  # fmt: skip
 BY_ID = {r.id: r for r in READINGS}
-FIGURES = ("delay", "funnel", "pg", "favoured")
+FIGURES = ("delay", "funnel", "pg", "literal")
+DEFAULT = "probable"
 
 
 def scenario_name(r: Reading, panel: str) -> str:
     """The run's scenario for reading ``r`` on ``panel``: the panel's own name for the default
     (the name ``reproduce`` uses, so its cells can be shared), ``PANEL-ID`` otherwise."""
-    return panel if r.id == "default" else f"{panel}-{r.id}"
+    return panel if r.id == DEFAULT else f"{panel}-{r.id}"
 
 
 def study_cells(base: dict[str, Scenario]) -> tuple[list[Scenario], dict[str, tuple[str, ...]]]:
     """Every scenario the study runs (the readings' changes applied to ``base``, validated) and
-    the methods each runs; a combination runs nothing of its own."""
+    the methods each runs; a pure combination runs nothing of its own."""
     scenarios, methods = [], {}
     for r in READINGS:
-        if r.parts:
-            continue
-        for p in r.panels:
+        for p in r.runs_on or r.panels:
+            if not r.methods:
+                continue
             s = base[p].replace(name=scenario_name(r, p), **r.changes)
             scenarios.append(s)
             methods[s.name] = r.methods
     return scenarios, methods
+
+
+def source(r: Reading, panel: str, method: str) -> Reading:
+    """The reading whose cell (``panel``, ``method``) reading ``r`` shows: its own, else the
+    first of its parts that computes it, else the default's."""
+    for candidate in (r, *(BY_ID[i] for i in r.parts)):
+        if candidate.runs(panel, method):
+            return candidate
+    return BY_ID[DEFAULT]
 
 
 def share_cells(out: Path, reproduce: Path, scenarios: Sequence[Scenario], seeds) -> list[str]:
@@ -169,12 +187,7 @@ def reading_table(r: Reading, table: pa.Table, base: dict[str, Scenario]) -> pa.
     for panel in r.panels:
         s = base[panel].replace(**r.changes)
         for method in METHODS:
-            source = BY_ID["default"]
-            for part in (r, *(BY_ID[i] for i in r.parts)):
-                if method in part.methods and panel in part.panels:
-                    source = part
-                    break
-            piece = _relabel(table, scenario_name(source, panel), panel)
+            piece = _relabel(table, scenario_name(source(r, panel, method), panel), panel)
             piece = piece.filter(pc.equal(piece["method"], method))
             n = piece.num_rows
             piece = piece.append_column("reading", pa.array([r.id] * n, pa.string()))
@@ -241,12 +254,14 @@ def medians_table(table: pa.Table) -> list[str]:
 
 
 def reading_findings(table: pa.Table, r: Reading, base: dict[str, Scenario]) -> list:
-    """The five findings of SPEC §4.5 (:func:`loopid.experiments.findings.findings`) on reading
+    """The paper's five findings (:func:`loopid.experiments.findings.findings`) on reading
     ``r``'s panels, each holds / does not hold."""
     from loopid.experiments.findings import findings
 
     hover = {p for p in r.panels if base[p].task in ("hover", "hover-delay")}
-    return findings(_subtable(table, r.id), hover)
+    sub = _subtable(table, r.id)
+    sub = sub.filter(pc.is_in(sub["scenario"], pa.array(list(r.panels), pa.string())))
+    return findings(sub, hover)
 
 
 def figures(table: pa.Table, out: Path) -> list[Path]:
@@ -258,7 +273,7 @@ def figures(table: pa.Table, out: Path) -> list[Path]:
         rs = [r for r in READINGS if r.figure == group]
         if group in ("delay", "funnel"):
             panel = rs[0].panels[0]
-            rs = [BY_ID["default"], *rs]
+            rs = [BY_ID[DEFAULT], *rs]
             pieces = [
                 _relabel(_subtable(table, r.id), panel, f"{panel}: {r.label}")
                 for r in rs
@@ -267,18 +282,18 @@ def figures(table: pa.Table, out: Path) -> list[Path]:
         elif group == "pg":
             pieces = []
             for p in ALL_PANELS:
-                default = _subtable(table, "default")
-                rollouts = _cells(_subtable(table, "pg-rollouts"), p, "pg")
-                rollouts = rollouts.set_column(
-                    rollouts.schema.get_field_index("method"),
+                default = _subtable(table, DEFAULT)
+                other = _cells(_subtable(table, "pg-transitions"), p, "pg")
+                other = other.set_column(
+                    other.schema.get_field_index("method"),
                     "method",
-                    pa.array(["pg (rollouts)"] * rollouts.num_rows, pa.string()),
+                    pa.array(["pg (transitions)"] * other.num_rows, pa.string()),
                 )
                 keep = [_cells(default, p, m) for m in ("expert", "pg")]
-                pieces.append(_relabel(concat([*keep, rollouts]), p, p))
+                pieces.append(_relabel(concat([*keep, other]), p, p))
         else:
             sub = _subtable(table, rs[0].id)
-            pieces = [_relabel(sub, p, f"{p}: favoured readings") for p in ALL_PANELS]
+            pieces = [_relabel(sub, p, f"{p}: literal readings") for p in ALL_PANELS]
         pieces = [pc_ for pc_ in pieces if pc_.num_rows]
         if not pieces:
             continue
@@ -313,15 +328,16 @@ def study_text(
     L = [
         "# loopid reading study",
         "",
-        "Every reading of SPEC §5, one factor at a time from the default, plus the combination "
-        'of the readings the evidence favours (README, "Readings"). Each reading runs only the '
-        "cells its field can change; the others are the default's (see "
-        "`loopid.experiments.study`). Medians over seeds of the test cost at each method's "
-        f"final iteration; {seeds} seeds. 1e8 is the cost cap (diverged).",
+        "Every reading of the details the paper leaves open, one factor at a time from the "
+        "default preset `probable`, and the preset `literal` (the literal readings of the "
+        "paper's text) as a whole. Each reading runs only the cells its fields can change; the "
+        "others are the default's or another reading's (see `loopid.experiments.study`). "
+        "Medians over seeds of the test cost at each method's final iteration; "
+        f"{seeds} seeds. 1e8 is the cost cap (diverged).",
         "",
         "The `samples` column (and a figure's x axis) counts transitions, except for the "
-        "policy gradient under `pg_samples = rollouts`, where it counts rollouts (one "
-        "perturbed-gain rollout of the task horizon per sample).",
+        "policy gradient under `pg_samples = rollouts` (the default), where it counts rollouts "
+        "(one perturbed-gain rollout of the task horizon per sample).",
         "",
     ]
     if command_s is not None:
@@ -331,7 +347,7 @@ def study_text(
             "",
         ]
     L += ["## Final medians", "", *medians_table(table), ""]
-    L += ["## The paper's findings under each reading (SPEC §4.5)", ""]
+    L += ["## The paper's findings under each reading", ""]
     L += [
         "| reading | panels | 1 D < B | 2 D good, one B | 3 D < L (hover) | 4 A plateau | "
         "5 PG little |",
@@ -344,6 +360,11 @@ def study_text(
         if r.id in found:
             verdicts = [f.verdict for f in found[r.id]]
             L.append(f"| {r.id} | {', '.join(r.panels)} | " + " | ".join(verdicts) + " |")
+            if len(r.panels) > 1:  # the presets: each panel alone too
+                for p in r.panels:
+                    one = reading_findings(table, r._replace(panels=(p,)), base)
+                    verdicts = [f.verdict for f in one]
+                    L.append(f"| {r.id} | {p} | " + " | ".join(verdicts) + " |")
     L.append("")
     for r in READINGS:
         if r.id not in found:
@@ -352,8 +373,8 @@ def study_text(
         L += [
             f"### {r.id}: {r.label}",
             "",
-            f"Changes: {changes} (SPEC {r.spec}); panels: {', '.join(r.panels)}; "
-            f"cells run: {', '.join(r.methods) or 'none (taken from ' + ', '.join(r.parts) + ')'}.",
+            f"Changes from `probable`: {changes}; panels: {', '.join(r.panels)}; "
+            f"cells run: {_runs(r)}.",
             "",
         ]
         for f in found[r.id]:
@@ -362,11 +383,21 @@ def study_text(
         L.append("")
     if prediction:
         L += [
-            "## The funnel's nominal models along the expert's flight (SPEC §5.2)",
+            "## The funnel's nominal models along the expert's flight",
             "",
             *prediction,
         ]
     return "\n".join(L) + "\n"
+
+
+def _runs(r: Reading) -> str:
+    """What reading ``r`` computes itself, and where its other cells come from."""
+    own = f"{', '.join(r.methods)}" + (f" on {', '.join(r.runs_on)}" if r.runs_on else "")
+    if not r.methods:
+        own = "none"
+    if r.parts:
+        own += f"; the rest from {', '.join(r.parts)} where they change it"
+    return own
 
 
 #: SPEC §5.2's independent figures: one-step velocity RMS along the expert's flight.

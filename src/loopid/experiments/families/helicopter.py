@@ -270,9 +270,10 @@ def memory(s: Scenario, method: str, seeds: int) -> int:
 
 
 def report(table, configs: dict[str, Scenario]) -> list[str]:
-    """The final costs per panel, each with its readings of SPEC §5, and the five findings."""
+    """The final costs per panel, each with its readings (:mod:`loopid.experiments.readings`),
+    and the five findings."""
     notes = {
-        name: f"Readings (SPEC §5): {readings_line(s)}."
+        name: f"Readings: {readings_line(s)}."
         + ("" if model_planner.is_default(s) else f" {model_planner.describe(s)}")
         for name, s in configs.items()
     }

@@ -1,0 +1,162 @@
+"""The readings presets: the defaults, ``--readings``, its order against ``--config`` and
+``--set``, run directories made under other readings, and the literal preset pinned.
+
+The pinned table ``tests/fixtures/reproduce_quick_literal.parquet`` is ``loopid reproduce
+--quick`` (helicopter panels) as computed before the default readings changed, when the literal
+readings were the defaults: ``--readings literal`` must give it bit for bit.
+"""
+
+import dataclasses
+from pathlib import Path
+
+import pyarrow.parquet as pq
+import pytest
+
+from conftest import cli
+from loopid.cli import main, scenario_from_options
+from loopid.experiments.execute import resolved_config
+from loopid.experiments.readings import (
+    PRESETS,
+    READING_FIELDS,
+    continue_hint,
+    preset,
+    preset_of,
+    readings_of,
+)
+from loopid.experiments.rundir import RunDir
+from loopid.experiments.scenarios import SCENARIOS, Scenario
+
+PINNED = Path(__file__).parent.parent / "fixtures" / "reproduce_quick_literal.parquet"
+QUICK = {"iterations": 4, "test_trajectories": 10, "seeds": 2}
+
+
+def test_presets_set_every_reading_field_and_differ_where_documented():
+    for p in PRESETS.values():
+        assert set(p) == set(READING_FIELDS)
+    differ = {k for k in READING_FIELDS if PRESETS["probable"][k] != PRESETS["literal"][k]}
+    assert differ == {"delay_mode", "funnel_nominal", "pg_samples"}
+    assert PRESETS["literal"] == {
+        "delay_mode": "fifo", "nu_pending": "hold", "funnel_nominal": "spec", "pads": True,
+        "pg_samples": "transitions",
+    }  # fmt: skip
+
+
+def test_the_packaged_scenarios_and_the_dataclass_carry_the_probable_readings():
+    for s in SCENARIOS.values():
+        assert {k: getattr(s, k) for k in READING_FIELDS} == PRESETS["probable"], s.name
+        assert preset_of(s.to_dict()) == "probable"
+    defaults = {f.name: f.default for f in dataclasses.fields(Scenario)}
+    assert {k: defaults[k] for k in READING_FIELDS} == PRESETS["probable"]
+    assert SCENARIOS["hover-delay"].delay_mode == "latency"
+    assert SCENARIOS["funnel"].funnel_nominal == "heading"
+    assert SCENARIOS["hover"].pg_samples == "rollouts"
+
+
+def test_unknown_preset_is_one_line_listing_the_presets():
+    with pytest.raises(ValueError, match="presets: probable, literal") as e:
+        preset("lit")
+    assert "'lit'" in str(e.value) and "\n" not in str(e.value)
+
+
+@pytest.mark.parametrize(
+    "args",
+    [
+        ["run", "hover", "--readings", "lit"],
+        ["reproduce", "--readings", "paper"],
+        ["reproduce", "--quick", "--readings", ""],
+    ],
+)
+def test_unknown_preset_exits_2_with_one_line(args, tmp_path, capsys, monkeypatch):
+    import loopid.experiments.executors as executors
+
+    monkeypatch.setattr(executors, "compile_cache", lambda path=None: "")
+    with pytest.raises(SystemExit) as e:
+        main([*args, "--out", str(tmp_path / "out")])
+    assert e.value.code == 2
+    lines = capsys.readouterr().err.strip().splitlines()
+    assert len(lines) == 1 and "presets: probable, literal" in lines[0], lines
+    assert not (tmp_path / "out").exists()
+
+
+def test_readings_on_a_family_without_readings_is_refused():
+    with pytest.raises(ValueError, match="--readings applies to the helicopter scenarios"):
+        scenario_from_options("mdp-trap", None, {}, [], "literal")
+
+
+def test_preset_order_config_then_readings_then_set(tmp_path):
+    """--readings overrides --config; --set overrides --readings; options override all."""
+    _, s, _ = scenario_from_options("funnel", None, {}, [], "literal")
+    assert {k: getattr(s, k) for k in READING_FIELDS} == PRESETS["literal"]
+    _, s, _ = scenario_from_options("funnel", None, {}, ["delay_mode=latency"], "literal")
+    assert (s.delay_mode, s.funnel_nominal, s.pg_samples) == ("latency", "spec", "transitions")
+    config = tmp_path / "c.toml"
+    config.write_text('funnel_nominal = "drift"\npg_samples = "transitions"\n')
+    _, s, _ = scenario_from_options("funnel", config, {}, [], None)
+    assert (s.delay_mode, s.funnel_nominal, s.pg_samples) == ("latency", "drift", "transitions")
+    _, s, _ = scenario_from_options("funnel", config, {}, [], "probable")
+    assert (s.funnel_nominal, s.pg_samples) == ("heading", "rollouts")
+    _, s, _ = scenario_from_options("funnel", config, {"seeds": 3}, ["pads=false"], "literal")
+    assert (s.funnel_nominal, s.pads, s.seeds) == ("spec", False, 3)
+
+
+def _config(readings: dict | None, *, drop: tuple[str, ...] = (), names=tuple(SCENARIOS)) -> dict:
+    scenarios = [SCENARIOS[n].replace(**{**QUICK, **(readings or {})}) for n in names]
+    config = resolved_config(scenarios, ["expert"], range(2))
+    for table in config["scenario"].values():
+        for k in drop:
+            del table[k]
+    return config
+
+
+def test_continue_hint_names_the_preset_or_the_fields():
+    new = _config(None)
+    assert continue_hint(_config(PRESETS["literal"]), new) == "--readings literal"
+    assert continue_hint(_config(None), new) is None  # nothing differs in the readings
+    odd = _config({"funnel_nominal": "drift"})
+    assert continue_hint(odd, new) == "--set funnel_nominal=drift"
+    assert continue_hint(_config({"iterations": 5}), new) is None  # not only the readings
+    # a config.toml from before the readings were fields: they took the literal values
+    old = _config(PRESETS["literal"], drop=READING_FIELDS)
+    assert readings_of(old["scenario"]["hover"]) == PRESETS["literal"]
+    assert continue_hint(old, new) == "--readings literal"
+
+
+@pytest.mark.parametrize("drop", [(), READING_FIELDS])
+def test_a_run_made_under_the_literal_readings_is_refused_with_the_flag(
+    drop, tmp_path, capsys, monkeypatch
+):
+    """A run directory from before the defaults changed: exit 2, one line naming
+    ``--readings literal``, nothing written; with the flag the same command is accepted."""
+    import loopid.experiments.executors as executors
+
+    monkeypatch.setattr(executors, "compile_cache", lambda path=None: "")
+    out = tmp_path / "old"
+    RunDir(out).prepare(_config(PRESETS["literal"], drop=drop, names=("hover",)))
+    before = (out / "config.toml").read_bytes()
+    args = ["run", "hover", "--methods", "expert", "--iterations", "4", "--seeds", "2"]
+    args += ["--test-trajectories", "10", "--out", str(out), "--workers", "1", "--quiet"]
+    with pytest.raises(SystemExit) as e:
+        main(args)
+    assert e.value.code == 2
+    lines = capsys.readouterr().err.strip().splitlines()
+    assert len(lines) == 1 and "continue it with --readings literal" in lines[0], lines
+    assert (out / "config.toml").read_bytes() == before
+    assert not any((out / "cells").iterdir())
+    # the preset the refusal names is accepted by the directory (prepare, no run)
+    _, s, _ = scenario_from_options("hover", None, QUICK, [], "literal")
+    RunDir(out).prepare(resolved_config([s], ["expert"], range(2)))
+
+
+@pytest.mark.slow
+def test_reproduce_quick_literal_equals_the_table_before_the_defaults_changed(tmp_path):
+    out = tmp_path / "literal"
+    r = cli(
+        "reproduce", "--quick", "--readings", "literal", "--quiet", "--out", out, cache=tmp_path
+    )
+    assert r.returncode == 0, r.stderr
+    ours = pq.read_table(out / "results.parquet")
+    pinned = pq.read_table(PINNED)
+    assert ours.num_rows == pinned.num_rows == 216
+    assert ours.equals(pinned)
+    report = (out / "report.md").read_text()
+    assert "Readings: literal (delay_mode = fifo" in report
