@@ -37,7 +37,7 @@ def test_presets_set_every_reading_field_and_differ_where_documented():
     assert differ == {"delay_mode", "funnel_nominal", "pg_samples"}
     assert PRESETS["literal"] == {
         "delay_mode": "fifo", "nu_pending": "hold", "funnel_nominal": "spec", "pads": True,
-        "pg_samples": "transitions",
+        "pg_samples": "transitions", "pg_update": "conservative",
     }  # fmt: skip
 
 

@@ -25,12 +25,13 @@ all see the same process noise ``w`` (common random numbers):
    below ``ℓ_0``. The trust radius ``ρ`` halves after a rejection and stays after an acceptance
    (``ρ_1 = pg_step · σ√m``).
 
-Two readings of "samples" (SPEC §5.3), ``samples_mode`` (the scenario's ``pg_samples``):
+Two readings of "samples", ``samples_mode`` (the scenario's ``pg_samples``):
 
-- ``"transitions"`` (the default; the measurements below): a sample is one transition, as for
+- ``"transitions"`` (the measurements below): a sample is one transition, as for
   every other method. Iteration n spends ``(P + 2)·H ≤ m`` of them: ``H = min(pg_horizon, T,
   m // 4)``, ``P = m // H − 2`` (hover, m = 500: H = 125, P = 2).
-- ``"rollouts"``: a sample is one rollout of the whole ``H = min(pg_horizon, T)`` steps with
+- ``"rollouts"`` (the scenarios' default): a sample is one rollout of the whole ``H =
+  min(pg_horizon, T)`` steps with
   perturbed gains, scored by its cost. The m rollouts of an iteration are the reference, ``P =
   m − 2`` probes and the candidate, and step 3's system is ``E g = Δℓ`` with ``E [L, d]`` the
   scaled perturbations (``L ≥ P``), solved as ``g = E⁺ Δℓ``: with ``P ≥ d`` (hover: m ≥ 54,
@@ -38,6 +39,24 @@ Two readings of "samples" (SPEC §5.3), ``samples_mode`` (the scenario's ``pg_sa
   them and the previous candidate), and on the shared draw ``w``
   ``ℓ(θ + δ) − ℓ(θ) = ⟨∇ℓ_w(θ) diag(1/s), e⟩ + O(σ²)``, so ``g`` is that draw's gradient up to
   curvature. Otherwise identical (steps 1-4); the rows count rollouts (``used = m``).
+
+Two readings of the step, ``update`` (the scenario's ``pg_update``), for the footnote's "same as
+CPI, except gradient descent is done directly on deterministic linear controller":
+
+- ``"conservative"`` (the default; steps 1-4 above): CPI's conservative update, a step of the
+  trust radius along the normalised estimate, taken only if it lowers the cost on the shared
+  draw. Under ``rollouts`` the sample count barely matters: once ``P ≥ d`` one shared draw
+  determines the system, so ``g`` is that draw's gradient whatever m is (the estimates of
+  m = 100 and m = 500 from the same key have cosine 0.95-0.99 on hover), and every step is
+  accepted, so the radius never shrinks and θ moves by ρ_1 per iteration
+  (``examples/pg_sample_count.py``). The pace is set by ρ_1, not by m.
+- ``"descent"``: plain gradient descent on noisy samples, ``θ ← θ − α g`` in scaled
+  coordinates, always taken. Every rollout of an iteration has its own noise draw (a sample
+  is one rollout's measured cost, as on a real system), so the estimate's noise falls as m
+  grows: the paper's own account of its baseline (100 samples "insufficient to get good
+  gradient estimates", 500 better). The step size α is set once, at the first iteration, so
+  that the first step is as long as the first trust radius (``α = ρ_1 / ‖g_1‖``): no new
+  setting; later steps scale with the estimate's length.
 
 The memory holds ``L = max(d, P + 1)`` rollouts: d so that the system can be square from
 several iterations' probes when P < d (the transitions reading: 2 probes a step); P + 1 so that
@@ -131,7 +150,8 @@ from loopid.algorithms.plant import Plant, ordered_sum
 class PGState(NamedTuple):
     """Per-seed state: the gain offset ``theta [m, n]``, the trust radius ``radius`` and the
     probe memory: raw-gain probes ``probes [L, m, n]``, their log-cost differences ``diffs [L]``,
-    which slots hold one ``filled [L]``, and the next slot ``cursor`` (a ring buffer)."""
+    which slots hold one ``filled [L]``, and the next slot ``cursor`` (a ring buffer); under
+    ``update = "descent"`` the step size ``alpha`` (0 until the first step sets it)."""
 
     theta: jax.Array
     radius: jax.Array
@@ -139,6 +159,7 @@ class PGState(NamedTuple):
     diffs: jax.Array
     filled: jax.Array
     cursor: jax.Array
+    alpha: jax.Array
 
 
 class PGStep(NamedTuple):
@@ -152,6 +173,7 @@ class PGStep(NamedTuple):
 
 
 SAMPLES_MODES = ("transitions", "rollouts")
+UPDATES = ("conservative", "descent")
 
 
 def budget(
@@ -182,6 +204,12 @@ def spent(samples: int, horizon: int, task_horizon: int, *, samples_mode: str = 
     (``"transitions"``, at most m) or ``P + 2 = m`` rollouts (``"rollouts"``)."""
     H, P = budget(samples, horizon, task_horizon, samples_mode=samples_mode)
     return P + 2 if samples_mode == "rollouts" else (P + 2) * H
+
+
+def check_update(update: str) -> None:
+    """One-line ``ValueError`` unless ``update`` is one of :data:`UPDATES`."""
+    if update not in UPDATES:
+        raise ValueError(f"pg_update must be one of {', '.join(UPDATES)}, got {update!r}")
 
 
 def fd_gradient(perturbations: jax.Array, differences: jax.Array) -> jax.Array:
@@ -219,7 +247,7 @@ def init_state(free: jax.Array, radius: float, *, probes: int = 0) -> PGState:
     m, n = free.shape
     return PGState(
         jnp.zeros((m, n)), jnp.float64(radius), jnp.zeros((L, m, n)), jnp.zeros(L),
-        jnp.zeros(L, bool), jnp.int32(0),
+        jnp.zeros(L, bool), jnp.int32(0), jnp.float64(0.0),
     )  # fmt: skip
 
 
@@ -234,11 +262,14 @@ def make_pg_step(
     nu_state_var: float,
     cost_cap: float,
     samples_mode: str = "transitions",
+    update: str = "conservative",
 ) -> Callable[[PGState, jax.Array], tuple[PGState, PGStep]]:
-    """One conservative iteration ``(state, key) -> (state, PGStep)`` for one seed (module
-    docstring, steps 1-4); pure, jittable, fixed shapes. ``samples_mode``: the reading of
-    ``samples`` (:func:`budget`); the state's memory must hold ``P + 1`` rollouts
+    """One iteration ``(state, key) -> (state, PGStep)`` for one seed (module docstring, steps
+    1-4); pure, jittable, fixed shapes. ``samples_mode``: the reading of ``samples``
+    (:func:`budget`); ``update``: the reading of the step (module docstring, "Two readings of
+    the step"); the state's memory must hold ``P + 1`` rollouts
     (``init_state(free, radius, probes=P)``)."""
+    check_update(update)
     H, P = budget(samples, horizon, plant.horizon, samples_mode=samples_mode)
     target = jnp.asarray(plant.task.target, jnp.float64)
     x0 = jnp.asarray(plant.task.x0, jnp.float64)
@@ -286,18 +317,39 @@ def make_pg_step(
                 f"P + 1 = {P + 1}: use init_state(free, radius, probes={P})"
             )
         k_noise, k_eps = jax.random.split(key)
-        w = plant.dynamics.noise_sequence(k_noise, H, std)
+        if update == "descent":  # every rollout its own draw: [reference, P probes, candidate]
+            draw = jax.vmap(lambda k: plant.dynamics.noise_sequence(k, H, std))
+            ws = draw(jax.random.split(k_noise, P + 2))
+            w, w_probes, w_cand = ws[0], ws[1 : P + 1], ws[P + 1]
+        else:  # common random numbers: one draw for every rollout of the iteration
+            w = plant.dynamics.noise_sequence(k_noise, H, std)
         log_ref, dxs = rollout(state.theta, w)
         rms = jnp.sqrt(ordered_sum(dxs**2, axis=0) / H)  # fixed order: chunk-invariant
         scale = jnp.where(jnp.isfinite(rms), jnp.maximum(rms, floor), floor)
         e = (sigma / np.sqrt(d)) * jax.random.normal(k_eps, (P, m, n), jnp.float64) * free
         delta = e / scale
-        log_probe = jax.vmap(lambda dl: rollout(state.theta + dl, w)[0])(delta)
+        if update == "descent":
+            log_probe = jax.vmap(lambda dl, wi: rollout(state.theta + dl, wi)[0])(delta, w_probes)
+        else:
+            log_probe = jax.vmap(lambda dl: rollout(state.theta + dl, w)[0])(delta)
         state = remember(state, delta, log_probe - log_ref)
         rows = jnp.where(state.filled[:, None, None], state.probes * scale, 0.0)
         g = fd_gradient(rows, jnp.where(state.filled, state.diffs, 0.0)) * free  # exact zeros
         norm = jnp.sqrt(ordered_sum((g * g).reshape(-1)))
         usable = jnp.isfinite(norm) & (norm > 0)
+        if update == "descent":
+            # plain gradient descent, θ ← θ − α g (scaled coordinates), always taken; α is set
+            # once, so that the first step is as long as the first trust radius
+            alpha = jnp.where(
+                (state.alpha > 0) | ~usable,
+                state.alpha,
+                state.radius / jnp.where(usable, norm, 1.0),
+            )
+            step_ = jnp.where(usable, -alpha * g, 0.0) / scale
+            log_cand = rollout(state.theta + step_, w_cand)[0]
+            state = remember(state, step_[None], (log_cand - log_ref)[None])
+            state = state._replace(theta=state.theta + step_, alpha=alpha)
+            return state, PGStep(log_ref, log_cand, usable, g)
         direction = jnp.where(usable, g / jnp.where(usable, norm, 1.0), 0.0)
         step_ = -state.radius * direction / scale
         log_cand = rollout(state.theta + step_, w)[0]
@@ -327,6 +379,7 @@ def run_policy_gradient(
     nu_state_var: float = 0.0025,
     cost_cap: float = 1e8,
     samples_mode: str = "transitions",
+    update: str = "conservative",
     progress: Callable[[int, Row], None] | None = None,
     noise: jax.Array | None = None,
 ) -> Trace:
@@ -335,7 +388,8 @@ def run_policy_gradient(
     ``horizon``: the longest rollout (``pg_horizon``); ``sigma``: the probe's action scale
     (``pg_sigma``); ``step``: the first trust radius in probing radii (``pg_step``); ``hold``:
     the trim-holding base (:func:`pg_base`) instead of π_1's gains; ``samples_mode``: the
-    reading of ``samples`` (``pg_samples``, :func:`budget`). The rows' ``policy_samples`` and
+    reading of ``samples`` (``pg_samples``, :func:`budget`); ``update``: the reading of the step
+    (``pg_update``: ``conservative`` or ``descent``). The rows' ``policy_samples`` and
     ``valid_samples`` are what an iteration spent (:func:`spent`), and the Trace's ``samples``
     column counts m per iteration: transitions under ``"transitions"``, *rollouts* (of
     ``min(horizon, T)`` steps each) under ``"rollouts"``. ``noise``: the seeds' test noise
@@ -350,7 +404,7 @@ def run_policy_gradient(
     base, free = pg_base(plant, K1, hold=hold)
     one_step = make_pg_step(
         plant, base, free, samples=samples, horizon=horizon, sigma=sigma,
-        nu_state_var=nu_state_var, cost_cap=cost_cap, samples_mode=samples_mode,
+        nu_state_var=nu_state_var, cost_cap=cost_cap, samples_mode=samples_mode, update=update,
     )  # fmt: skip
 
     def evaluate(theta, noise):

@@ -27,7 +27,9 @@ STYLE = {
     "abbeel": ("$A$", "C3", "-."),
     "expert": ("$L$", "black", "-"),
     "pg": ("PG", "C4", ":"),
-    "pg (rollouts)": ("PG, rollouts", "C5", "-"),  # the reading study's pg_samples = rollouts
+    # the reading study's other readings of the policy gradient
+    "pg (transitions)": ("PG, transitions", "C5", "-"),
+    "pg (descent)": ("PG, descent", "C6", "-"),
 }
 TITLES = {"hover": "Hover", "hover-delay": "Hover, delay 1", "funnel": "Nose-in funnel"}
 

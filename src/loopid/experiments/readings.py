@@ -16,6 +16,9 @@ A *reading* is one defensible way to build such a detail; each is a field of
 - ``pads``: the 600-step funnel with hover pads, or the 400-step circles alone.
 - ``pg_samples``: what the policy gradient's m samples per iteration are: perturbed-gain
   rollouts, each scored by its cost (``rollouts``), or transitions (``transitions``).
+- ``pg_update``: the policy gradient's step: CPI's conservative update on one shared noise draw
+  (``conservative``), or plain gradient descent on independent samples (``descent``);
+  :mod:`loopid.algorithms.policy_gradient`.
 
 A *preset* is a named bundle of readings (:data:`PRESETS`):
 
@@ -32,6 +35,10 @@ A *preset* is a named bundle of readings (:data:`PRESETS`):
 - ``literal``: the most literal reading of the paper's text (``fifo``, ``spec``,
   ``transitions``), kept one flag away: ``--readings literal``.
 
+``pg_update`` is ``conservative`` in both presets: it is the reading the baseline was built and
+measured with before ``descent`` existed, and a run directory that recorded no ``pg_update``
+ran it.
+
 Every reading stays a scenario field, so any one can still be set alone (``--set
 delay_mode=fifo``). On the command line the scenario's fields come from its file, then
 ``--config``, then ``--readings``, then ``--set``, then the common options: later ones win.
@@ -40,7 +47,7 @@ delay_mode=fifo``). On the command line the scenario's fields come from its file
 from collections.abc import Mapping
 
 #: The scenario fields that are readings of the paper's open details.
-READING_FIELDS = ("delay_mode", "nu_pending", "funnel_nominal", "pads", "pg_samples")
+READING_FIELDS = ("delay_mode", "nu_pending", "funnel_nominal", "pads", "pg_samples", "pg_update")
 
 #: The presets: a value for every reading field.
 PRESETS: dict[str, dict] = {
@@ -50,6 +57,7 @@ PRESETS: dict[str, dict] = {
         "funnel_nominal": "heading",
         "pads": True,
         "pg_samples": "rollouts",
+        "pg_update": "conservative",
     },
     "literal": {
         "delay_mode": "fifo",
@@ -57,6 +65,7 @@ PRESETS: dict[str, dict] = {
         "funnel_nominal": "spec",
         "pads": True,
         "pg_samples": "transitions",
+        "pg_update": "conservative",
     },
 }
 

@@ -17,6 +17,7 @@ from loopid.algorithms.collect import SAMPLING_MODES
 from loopid.algorithms.loop import TEST_POLICIES
 from loopid.algorithms.plant import check_delay_reading
 from loopid.algorithms.policy_gradient import SAMPLES_MODES as PG_SAMPLES
+from loopid.algorithms.policy_gradient import UPDATES as PG_UPDATES
 from loopid.experiments import model_planner
 from loopid.experiments.config import check_int, check_number, read_flat_file, replaced
 from loopid.experiments.readings import PRESETS, READING_FIELDS, reading_text, readings_line
@@ -41,12 +42,14 @@ class Scenario(model_planner.ModelPlanner):
       gamma: stopping parameter of ``geometric`` sampling (stop w.p. 1 − γ per step).
       dagger_fraction: DAgger's probability that a slot comes from the current policy.
       stop_norm: training trajectories restart when ‖[Δx; Δu]‖₂ exceeds this.
-      nu_pending, delay_mode, funnel_nominal, pads, pg_samples: the readings of the details the
-        paper leaves open (:mod:`loopid.experiments.readings`); their defaults are the preset
+      nu_pending, delay_mode, funnel_nominal, pads, pg_samples, pg_update: the readings of the
+        details the paper leaves open (:mod:`loopid.experiments.readings`); their defaults are
+        the preset
         ``probable``: ``delay_mode = "latency"`` (the policy acts at once on the state observed
         d steps earlier; the learner records the true transition), ``nu_pending = "hold"``
         (used under ``fifo`` only), ``funnel_nominal = "heading"``, ``pads = True`` and
-        ``pg_samples = "rollouts"`` (one perturbed-gain rollout per sample).
+        ``pg_samples = "rollouts"`` (one perturbed-gain rollout per sample) and ``pg_update =
+        "conservative"`` (CPI's conservative step on one shared noise draw).
       nu_state_var, nu_action_var: ν_t's state and action noise variances.
       expert_action_var: ν_en's action noise variance.
       ftrl_lambda: λ of the FTRL regulariser (λ/√n)‖W‖²_F.
@@ -76,6 +79,7 @@ class Scenario(model_planner.ModelPlanner):
     delay_mode: str = PRESETS["probable"]["delay_mode"]
     funnel_nominal: str = PRESETS["probable"]["funnel_nominal"]
     pg_samples: str = PRESETS["probable"]["pg_samples"]
+    pg_update: str = PRESETS["probable"]["pg_update"]
     nu_state_var: float = 0.0025
     nu_action_var: float = 0.0001
     expert_action_var: float = 0.0001
@@ -139,6 +143,8 @@ def validate(s: Scenario) -> None:
         )
     if s.pg_samples not in PG_SAMPLES:
         raise ValueError(f"pg_samples must be one of {', '.join(PG_SAMPLES)}, got {s.pg_samples!r}")
+    if s.pg_update not in PG_UPDATES:
+        raise ValueError(f"pg_update must be one of {', '.join(PG_UPDATES)}, got {s.pg_update!r}")
     check_number("gamma", s.gamma, 0.0, 1.0 - 1e-12, open_low=True)
     check_number("dagger_fraction", s.dagger_fraction, 0.0, 1.0)
     check_number("stop_norm", s.stop_norm, 0.0, open_low=True)

@@ -47,7 +47,7 @@ import pyarrow.compute as pc
 
 from loopid.algorithms.methods import LEARNING_METHODS, METHODS
 from loopid.experiments.config import seeds_from_value
-from loopid.experiments.readings import PRESETS, READING_FIELDS, reading_text
+from loopid.experiments.readings import PRESETS, READING_FIELDS, reading_text, readings_of
 from loopid.experiments.results import concat, write_atomic_bytes
 from loopid.experiments.scenarios import SCENARIOS, Scenario
 
@@ -112,6 +112,9 @@ READINGS: tuple[Reading, ...] = (
         "pg-transitions", "pg", "pg_samples = transitions", {"pg_samples": "transitions"},
         ALL_PANELS, ("pg",),
     ),
+    Reading(
+        "pg-descent", "pg", "pg_update = descent", {"pg_update": "descent"}, ALL_PANELS, ("pg",),
+    ),
 )  # fmt: skip
 BY_ID = {r.id: r for r in READINGS}
 FIGURES = ("delay", "funnel", "pg", "literal")
@@ -163,7 +166,8 @@ def share_cells(out: Path, reproduce: Path, scenarios: Sequence[Scenario], seeds
     theirs, ours = RunDir(reproduce), RunDir(out)
     copied = []
     for s in scenarios:
-        if config.get("scenario", {}).get(s.name) != s.to_dict():
+        theirs_s = config.get("scenario", {}).get(s.name)
+        if theirs_s is None or {**theirs_s, **readings_of(theirs_s)} != s.to_dict():
             continue
         for f in sorted(theirs.cells.glob(f"{s.name}__*.parquet")):
             target = ours.cells / f.name
@@ -283,14 +287,17 @@ def figures(table: pa.Table, out: Path) -> list[Path]:
             pieces = []
             for p in ALL_PANELS:
                 default = _subtable(table, DEFAULT)
-                other = _cells(_subtable(table, "pg-transitions"), p, "pg")
-                other = other.set_column(
-                    other.schema.get_field_index("method"),
-                    "method",
-                    pa.array(["pg (transitions)"] * other.num_rows, pa.string()),
-                )
                 keep = [_cells(default, p, m) for m in ("expert", "pg")]
-                pieces.append(_relabel(concat([*keep, other]), p, p))
+                for r in rs:
+                    other = _cells(_subtable(table, r.id), p, "pg")
+                    name = f"pg ({r.label.split(' = ')[-1]})"
+                    other = other.set_column(
+                        other.schema.get_field_index("method"),
+                        "method",
+                        pa.array([name] * other.num_rows, pa.string()),
+                    )
+                    keep.append(other)
+                pieces.append(_relabel(concat(keep), p, p))
         else:
             sub = _subtable(table, rs[0].id)
             pieces = [_relabel(sub, p, f"{p}: literal readings") for p in ALL_PANELS]

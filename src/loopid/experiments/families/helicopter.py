@@ -249,7 +249,7 @@ def _run(method: str, s: Scenario, seeds: np.ndarray, progress: Progress | None)
             st.plant, _agent(key), seeds, iterations=s.iterations, samples=s.samples,
             n_test=s.test_trajectories, horizon=s.pg_horizon, sigma=s.pg_sigma, step=s.pg_step,
             hold=is_hover(s.task), nu_state_var=s.nu_state_var, cost_cap=s.cost_cap,
-            samples_mode=s.pg_samples, progress=progress, noise=noise.test,
+            samples_mode=s.pg_samples, update=s.pg_update, progress=progress, noise=noise.test,
         )  # fmt: skip
     fractions = M.policy_fractions(method, s.iterations, dagger_fraction=s.dagger_fraction)
     return run_learning(
