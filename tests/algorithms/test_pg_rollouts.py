@@ -190,3 +190,82 @@ def test_rollouts_lower_the_lq_cost(lq):
     assert np.all(rows.policy_samples[:, 1:] == samples)
     assert np.all(rows.valid_samples[:, 1:] == samples)
     np.testing.assert_array_equal(trace.samples, samples * np.arange(8))
+
+
+# ---- the two readings of the step (pg_update) --------------------------------------------------
+
+
+_COMPILED: dict = {}
+
+
+def _steps(lq, base, *, samples: int, update: str, noise_std: float | None = None):
+    """The baseline's iteration under ``update`` on the LQ system (``noise_std``: another noise
+    level of the same system), jitted once per module."""
+    key = (samples, update, noise_std)
+    if key not in _COMPILED:
+        _COMPILED[key] = _compile(lq, base, samples=samples, update=update, noise_std=noise_std)
+    return _COMPILED[key]
+
+
+def _compile(lq, base, *, samples: int, update: str, noise_std: float | None):
+    plant = lq.plant
+    if noise_std is not None:
+        task = plant.task._replace(noise_std=noise_std)
+        plant = make_plant(task, plant.dynamics, stop_norm=50.0)
+    free = jnp.ones((M_ACT, K_STATE + 1))
+    one = make_pg_step(
+        plant, base, free, samples=samples, horizon=600, sigma=SIGMA, nu_state_var=NU_STATE_VAR,
+        cost_cap=CAP, samples_mode="rollouts", update=update,
+    )  # fmt: skip
+    _, P = budget(samples, 600, T, samples_mode="rollouts")
+    return jax.jit(one), init_state(free, 0.01, probes=P)
+
+
+def test_descent_without_noise_is_gradient_descent_with_alpha_from_the_first_radius(lq, base):
+    """Noise-free, the two readings see the same rollouts: the first descent step equals the
+    conservative one (α = ρ_1/‖g_1‖ makes it the trust radius long), and every later step is
+    exactly −α g, α fixed, where the conservative step stays ρ long along g/‖g‖."""
+    descent, state_d = _steps(lq, base, samples=SAMPLES, update="descent", noise_std=0.0)
+    conservative, state_c = _steps(lq, base, samples=SAMPLES, update="conservative", noise_std=0.0)
+    key = jax.random.key(3)
+    d1, info_d = descent(state_d, key)
+    c1, info_c = conservative(state_c, key)
+    np.testing.assert_allclose(info_d.gradient, info_c.gradient, rtol=1e-12, atol=1e-15)
+    assert bool(info_c.accepted)
+    np.testing.assert_allclose(d1.theta, c1.theta, rtol=1e-12, atol=1e-15)
+    g1 = np.asarray(info_d.gradient)
+    np.testing.assert_allclose(float(d1.alpha), 0.01 / np.linalg.norm(g1), rtol=1e-12)
+    d2, info_2 = descent(d1, jax.random.key(4))
+    assert float(d2.alpha) == float(d1.alpha)  # set once
+    step = np.asarray(d2.theta - d1.theta)
+    g2 = np.asarray(info_2.gradient)
+    # in scaled coordinates the step is −α g: the ratio step/g is −α/s_j in every column
+    ratio = step / np.where(g2 == 0, 1.0, g2)
+    assert np.all(ratio < 0)
+    np.testing.assert_allclose(ratio, ratio[0:1, :] * np.ones_like(ratio), rtol=1e-9)
+    assert not np.allclose(np.linalg.norm(g2), np.linalg.norm(g1), rtol=1e-3)  # a real test
+
+
+def test_descent_gives_every_rollout_its_own_draw(lq, base):
+    """Under ``conservative`` a step of length ~0 costs what the reference costs (the same
+    draw); under ``descent`` the candidate flies its own draw, so its cost differs by the
+    noise."""
+    key = jax.random.key(0)
+    spread = {}
+    for update in ("conservative", "descent"):
+        one, state = _steps(lq, base, samples=SAMPLES, update=update)
+        _, info = one(state._replace(radius=jnp.float64(1e-12)), key)
+        spread[update] = abs(float(info.log_cand - info.log_ref))
+    assert spread["conservative"] < 1e-9
+    assert spread["descent"] > 1e-3
+
+
+def test_unknown_update_is_one_line():
+    with pytest.raises(ValueError, match="pg_update must be one of conservative, descent"):
+        _compile(
+            _lq(),
+            jnp.zeros((T, M_ACT, K_STATE + 1)),
+            samples=SAMPLES,
+            update="bold",
+            noise_std=None,
+        )

@@ -102,6 +102,7 @@ def test_read_config_rejects(tmp_path, text, needle):
             "funnel_nominal must be one of spec, no-increment, drift, heading, got 'exact'",
         ),
         ({"pg_samples": "episodes"}, "pg_samples must be one of transitions, rollouts"),
+        ({"pg_update": "bold"}, "pg_update must be one of conservative, descent, got 'bold'"),
         ({"cost_cap": float("nan")}, "cost_cap must be"),
         ({"colour": "red"}, "unknown scenario field"),
     ],
