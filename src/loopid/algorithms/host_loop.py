@@ -15,10 +15,11 @@ update, its losses and the solve are one jitted function vmapped over seeds (com
 run and shared by every method through ``cell``).
 
 Randomness: slot seeds are ``SeedSequence([seed, n, stream]).generate_state(k, uint32)`` with
-streams 1 (policy), 2 (ν) and 3 (test, with n = 0: the same test episodes at every iteration and for
-every method at that seed, i.e. common random numbers); each slot seeds its env resets and action
-noise (:mod:`loopid.systems.from_gymnasium`). The draws and the policy/ν choice use the JAX loop's
-keys (:func:`loopid.algorithms.loop.iteration_keys`), and the learning step is the JAX loop's
+the host streams of :mod:`loopid.algorithms.keys`: 1 (policy), 2 (ν) and 3 (test, with n = 0:
+the same test episodes at every iteration and for every method at that seed, i.e. common random
+numbers); each slot seeds its env resets and action noise (:mod:`loopid.systems.from_gymnasium`).
+The draws and the policy/ν choice use the JAX loop's keys
+(:func:`loopid.algorithms.keys.iteration_keys`), and the learning step is the JAX loop's
 (:func:`loopid.algorithms.loop.learning_step`).
 
 Test cost of one episode: ``Σ_t c(o_t, a_t)`` over the actions taken (plus ``termination_cost`` if
@@ -35,6 +36,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from loopid.algorithms.keys import HOST_EVALUATE, HOST_NU, HOST_POLICY, HOST_TEST
 from loopid.algorithms.loop import (
     Agent,
     Row,
@@ -51,9 +53,8 @@ from loopid.learners import ftrl_least_squares
 from loopid.models.linear_offset import LinearOffsetModel
 from loopid.systems.from_gymnasium import GymSystem, QuadraticCost, Rollouts, Slot
 
-_POLICY, _NU, _TEST = 1, 2, 3
 #: The slot stream of ``loopid evaluate``'s episodes: noise the run never saw.
-EVALUATE = 4
+EVALUATE = HOST_EVALUATE
 
 
 class Exploration(NamedTuple):
@@ -191,7 +192,7 @@ def test_episodes(
     cost,
     termination_cost=0.0,
     cost_cap=1e8,
-    stream: int = _TEST,
+    stream: int = HOST_TEST,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Capped costs and diverged flags ``[S, n_test]`` of every seed's policy ``K [S, T, m, n]``
     on that seed's test episodes (slot seeds ``SeedSequence([seed, 0, stream])``; the default
@@ -271,14 +272,14 @@ def run_learning_host(
         slots = [
             Slot(0, s, x, 0.0, True)
             for s in range(S)
-            for x in slot_seeds(seeds[s], n, _POLICY, runs)
+            for x in slot_seeds(seeds[s], n, HOST_POLICY, runs)
         ]
         if nu is not None:
             policies.append(nu.policy)
             slots += [
                 Slot(1, s, x, float(nu.action_std), True)
                 for s in range(S)
-                for x in slot_seeds(seeds[s], n, _NU, runs)
+                for x in slot_seeds(seeds[s], n, HOST_NU, runs)
             ]
         r = system.rollouts(policies, slots)
         half = S * runs

@@ -17,8 +17,9 @@ Speed: the iteration is a pure function of a fixed-shape carry, vmapped over see
 once; :func:`run_learning` calls it N − 1 times from Python (no retracing: the iteration number and
 ``p_n`` are traced arguments), which gives progress and early results per iteration.
 
-Randomness: seed ``s`` has key ``k = jax.random.key(s)``; training draws at iteration n use
-``fold_in(fold_in(k, 1), n)`` (:func:`iteration_keys`, shared by every loop). The test trajectories'
+Randomness (:mod:`loopid.algorithms.keys`, every stream named there): seed ``s`` has key ``k =
+jax.random.key(s)``; training draws at iteration n use ``fold_in(fold_in(k, 1), n)``
+(:func:`iteration_keys`, shared by every loop). The test trajectories'
 process noise is drawn once per seed from ``fold_in(k, 2)`` and reused at every iteration, so every
 method sees the same test noise at the same seed and iteration (common random numbers), and a
 curve's changes from one iteration to the next come from the policy alone. (Drawing it afresh each
@@ -36,109 +37,28 @@ import jax.numpy as jnp
 import numpy as np
 
 from loopid.algorithms.collect import policy_samples
+from loopid.algorithms.contracts import (
+    Agent,
+    Cell,
+    Diagnostics,
+    EvalNoise,
+    Row,
+    SolverInfo,
+    Trace,
+)
+from loopid.algorithms.keys import (
+    EVALUATE,
+    SELECT,
+    TEST,
+    IterationKeys,
+    iteration_key,
+    iteration_keys,
+    seed_keys,
+    stream_key,
+)
 from loopid.algorithms.plant import LoopPlant, Transitions, noise_columns, ordered_sum, select
 
 TEST_POLICIES = ("last", "best", "mixture")
-_TRAIN, _TEST, _SELECT = 1, 2, 3
-#: The key stream of ``loopid evaluate``'s test trajectories: ``fold_in(k, 4)``, noise the run
-#: never saw.
-EVALUATE = 4
-
-
-class SolverInfo(NamedTuple):
-    """The optimal-control solve's status: ``converged`` and the closed-loop spectral radius."""
-
-    converged: jax.Array
-    spectral_radius: jax.Array
-
-
-class Agent(NamedTuple):
-    """Model class + online learner + optimal-control solver, as pure functions.
-
-    - ``init() -> state``: the learner's initial state (the initial model).
-    - ``update(state, batch: Transitions) -> state``: one online-learning step on a batch (masked
-      rows ignored).
-    - ``policy(state) -> (K [horizon, m, n], SolverInfo)``: solve the optimal-control problem on
-      the current model.
-    - ``loss(state, batch) -> [b]``: per-row prediction loss of the current model.
-    - ``policies(states) -> (K [S, horizon, m, n], SolverInfo [S])`` (optional): ``policy`` of
-      every seed (a leading seed axis), in whatever way suits the solver (batched, or seed by
-      seed so that a ``cond`` skips the branch it does not take); default seed by seed.
-    - ``params(state) -> {name: array}`` (optional): the learned model's parameters, what a run
-      saves of it (:attr:`Trace.final`).
-    """
-
-    init: Callable[[], Any]
-    update: Callable[[Any, Transitions], Any]
-    policy: Callable[[Any], tuple[jax.Array, SolverInfo]]
-    loss: Callable[[Any, Transitions], jax.Array]
-    policies: Callable[[Any], tuple[jax.Array, SolverInfo]] | None = None
-    params: Callable[[Any], dict] | None = None
-
-
-class Row(NamedTuple):
-    """One iteration's results, per seed (leaves ``[S]``); stacked over iterations in a Trace.
-
-    - ``test_cost``: mean capped total cost over the test trajectories;
-    - ``test_cost_median``: their median;
-    - ``diverged``: how many reached the cap or a non-finite state;
-    - ``loss_nu`` / ``loss_policy``: the model's mean squared prediction error, before the update,
-      on this iteration's ν draws / policy draws (0 when there were none);
-    - ``online_loss``: running average over iterations of the loss on the trained batch, before
-      each update (the no-regret learner's average online loss);
-    - ``policy_samples``: how many of the m trained transitions came from the policy;
-    - ``valid_samples``: how many were usable (not cut by the safe region);
-    - ``solver_converged``, ``spectral_radius``: the optimal-control solve's status;
-    - ``extra``: ``{name: [S] array}`` from a :class:`Diagnostics` hook (empty without one).
-    """
-
-    test_cost: jax.Array
-    test_cost_median: jax.Array
-    diverged: jax.Array
-    loss_nu: jax.Array
-    loss_policy: jax.Array
-    online_loss: jax.Array
-    policy_samples: jax.Array
-    valid_samples: jax.Array
-    solver_converged: jax.Array
-    spectral_radius: jax.Array
-    extra: dict
-
-
-class Diagnostics(NamedTuple):
-    """An optional per-iteration hook for quantities only a particular system can compute (the
-    exact finite-MDP bounds, say). ``init() -> state``; ``update(state, learner_state, K, p, n)
-    -> (state, {name: scalar})`` runs after each solve (iteration n, policy ``K``, policy
-    fraction ``p`` of the batch that was just learned from; ``p = 0`` at n = 1). The names become
-    extra result columns."""
-
-    init: Callable[[], Any]
-    update: Callable[..., tuple[Any, dict]]
-
-
-class Trace(NamedTuple):
-    """All iterations of one cell: ``iteration [N]``, ``samples [N]`` (collected before the
-    policy of that iteration was solved), ``rows`` (a :class:`Row` with leaves ``[S, N]``) and
-    ``final``: what the cell ended with, ``{name: [S, ...] array}``: ``K`` the last policy's
-    gains, the model's parameters (:attr:`Agent.params`), and ``best_K`` / ``history`` (every
-    policy) when the test policy is the best one or the mixture."""
-
-    seeds: np.ndarray
-    iteration: np.ndarray
-    samples: np.ndarray
-    rows: Row
-    final: dict | None = None
-
-
-class Cell(NamedTuple):
-    """One compiled learning cell (:func:`make_cell`): ``start(keys, noise) -> (carry, Row)``,
-    ``step(carry, keys, noise, n, p, which) -> (carry, Row)`` and ``noise(keys) -> EvalNoise``
-    (the seeds' test noise, :func:`noise_program`), each compiled once and reused by every
-    method that shares the cell."""
-
-    start: Callable
-    step: Callable
-    noise: Callable
 
 
 class _Carry(NamedTuple):
@@ -181,26 +101,8 @@ def batch_losses(agent: Agent, learner, from_pol, from_nu, take: jax.Array):
     )
 
 
-def seed_keys(seeds) -> jax.Array:
-    """One key per integer seed (``jax.random.key(seed)``), stacked ``[S]``."""
-    seeds = np.asarray(seeds)
-    if seeds.ndim != 1 or seeds.size == 0 or not np.issubdtype(seeds.dtype, np.integer):
-        raise ValueError(f"seeds must be a non-empty list of integers, got {seeds!r}")
-    if (seeds < 0).any():
-        raise ValueError(f"seeds must be >= 0, got {seeds.tolist()}")
-    return jax.vmap(jax.random.key)(jnp.asarray(seeds, dtype=jnp.uint32))
-
-
-class EvalNoise(NamedTuple):
-    """The test noise of every seed, ``test [horizon, n_noise, S, n_test]`` (the column layout of
-    :meth:`Plant.eval_seeds`), and for ``best`` the selection noise ``select``, likewise."""
-
-    test: jax.Array
-    select: jax.Array
-
-
 def noise_program(
-    plant: LoopPlant, n_test: int, test_policy: str, stream: int = _TEST
+    plant: LoopPlant, n_test: int, test_policy: str, stream: int = TEST
 ) -> Callable[..., EvalNoise]:
     """The jitted ``keys [S] -> EvalNoise``: every seed's test noise from ``fold_in(k, stream)``
     (2, or :data:`EVALUATE` for fresh noise) and, for ``best``, its selection noise from
@@ -210,10 +112,10 @@ def noise_program(
     of a run shares one compilation."""
 
     def one(key):
-        test = plant.eval_noise(jax.random.fold_in(key, stream), n_test)
+        test = plant.eval_noise(stream_key(key, stream), n_test)
         if test_policy != "best":
             return EvalNoise(test, jnp.zeros((0,), test.dtype))
-        return EvalNoise(test, plant.eval_noise(jax.random.fold_in(key, _SELECT), n_test))
+        return EvalNoise(test, plant.eval_noise(stream_key(key, SELECT), n_test))
 
     def columns(keys):
         return jax.tree_util.tree_map(noise_columns, jax.vmap(one)(keys))
@@ -224,24 +126,6 @@ def noise_program(
 def eval_noise(plant: LoopPlant, keys: jax.Array, n_test: int, test_policy: str) -> EvalNoise:
     """The test (and selection) noise of every seed (:func:`noise_program`, compiled afresh)."""
     return noise_program(plant, n_test, test_policy)(keys)
-
-
-def iteration_key(key: jax.Array, n) -> jax.Array:
-    """The key of iteration ``n``'s training draws of one seed: ``fold_in(fold_in(k, 1), n)``."""
-    return jax.random.fold_in(jax.random.fold_in(key, _TRAIN), n)
-
-
-class IterationKeys(NamedTuple):
-    """Iteration n's three training keys of one seed: the policy's draws, ν's draws, the mix."""
-
-    policy: jax.Array
-    nu: jax.Array
-    mix: jax.Array
-
-
-def iteration_keys(key: jax.Array, n) -> IterationKeys:
-    """:func:`iteration_key` split three ways (every loop's one key schedule)."""
-    return IterationKeys(*jax.random.split(iteration_key(key, n), 3))
 
 
 class LearnStats(NamedTuple):
@@ -314,7 +198,7 @@ def _evaluate(
         carry = carry._replace(history=history)
 
         def one_seed(hist, key, w):  # w [horizon, n_noise, n_test]
-            pick = jax.random.randint(jax.random.fold_in(key, _SELECT), (w.shape[-1],), 0, n)
+            pick = jax.random.randint(stream_key(key, SELECT), (w.shape[-1],), 0, n)
             return jax.vmap(plant.eval_one, in_axes=(0, -1))(hist[pick], w)
 
         costs, div = jax.vmap(one_seed, in_axes=(0, 0, 2))(history, keys, noise.test)
@@ -596,3 +480,11 @@ def _trace(seeds, samples: int, rows: list[Row], final: dict | None = None) -> T
     iteration = np.arange(1, n + 1)
     final = None if final is None else {k: np.asarray(v) for k, v in final.items()}
     return Trace(np.asarray(seeds), iteration, (iteration - 1) * samples, stacked, final)
+
+
+__all__ = [  # the contracts and key streams, importable from here as before
+    "EVALUATE", "TEST_POLICIES", "Agent", "Cell", "Diagnostics", "EvalNoise", "IterationKeys",
+    "Row", "SolverInfo", "Trace", "at_least", "cell_memory", "drive", "eval_noise",
+    "iteration_key", "iteration_keys", "learning_step", "make_cell", "noise_program",
+    "run_fixed_policy", "run_learning", "seed_keys", "trajectory_mean",
+]  # fmt: skip

@@ -612,7 +612,8 @@ def trajectories(run_dir, configs, path) -> None:
     matplotlib.use("Agg", force=True)
     import matplotlib.pyplot as plt
 
-    from loopid.algorithms.host_loop import _TEST, slot_seeds
+    from loopid.algorithms.host_loop import slot_seeds
+    from loopid.algorithms.keys import HOST_TEST
     from loopid.experiments import artifacts
     from loopid.experiments.results import write_atomic_bytes
     from loopid.systems.from_gymnasium import Slot
@@ -629,7 +630,7 @@ def trajectories(run_dir, configs, path) -> None:
             for m in methods:
                 _, arrays = artifacts.read(cells, name, m)
                 seed = int(arrays["seeds"][0])
-                slot = Slot(0, 0, slot_seeds(seed, 0, _TEST, 1)[0], 0.0, False)
+                slot = Slot(0, 0, slot_seeds(seed, 0, HOST_TEST, 1)[0], 0.0, False)
                 first = {k: v if k.startswith("shared.") else v[:1] for k, v in arrays.items()}
                 r = system.rollouts([_saved_policy(learner, system, first)], [slot])
                 steps = int(r.mask[0].sum())

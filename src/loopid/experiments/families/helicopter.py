@@ -27,6 +27,7 @@ import numpy as np
 
 from loopid.algorithms import methods as M
 from loopid.algorithms.expert import expert_gains
+from loopid.algorithms.keys import TEST, stream_key
 from loopid.algorithms.loop import (
     EVALUATE,
     Agent,
@@ -335,10 +336,10 @@ def shared(s: Scenario, method: str) -> dict:
 
 
 def evaluate(s: Scenario, arrays: dict, seeds, episodes: int, env=None) -> np.ndarray:
-    """Capped test costs ``[S, episodes]`` of the saved policies on fresh noise
-    (``fold_in(key(seed), 4)``), flown as the run flew them (its delay reading included): the
-    gains ``arrays["K"] [S, T, m, n]``, or under ``planner_kind = "mpc"`` MPC re-planning on
-    each seed's saved model."""
+    """Capped test costs ``[S, episodes]`` of the saved policies on fresh noise (the stream
+    :data:`~loopid.algorithms.keys.EVALUATE`), flown as the run flew them (its delay reading
+    included): the gains ``arrays["K"] [S, T, m, n]``, or under ``planner_kind = "mpc"`` MPC
+    re-planning on each seed's saved model."""
     if env is not None:
         raise ValueError(f"--env {env!r} applies to gym runs, not to {s.name}")
     plant, policy = setup(s).plant, jax.numpy.asarray(arrays["K"])
@@ -368,7 +369,7 @@ def _flights(run_dir, s: Scenario, methods, seed: int) -> dict:
     from loopid.experiments.flights import fly
 
     plant = setup(s).plant
-    key = jax.random.fold_in(jax.random.key(int(seed)), 2)  # the loop's test-noise stream
+    key = stream_key(jax.random.key(int(seed)), TEST)  # the loop's test noise
     noise = plant.eval_noise(key, 1)[0]
     flights = {}
     for m in methods:

@@ -1,0 +1,128 @@
+"""The contracts between the engine's parts: what an agent is, what an iteration reports, what a
+cell returns.
+
+- :class:`Agent`: model class + online learner + optimal-control solver, as pure functions
+  (Algorithm 1's "fit" and "solve"); built by a family from its config.
+- :class:`SolverInfo`: the solve's status (converged, closed-loop spectral radius).
+- :class:`Row`: one iteration's results per seed; :class:`Trace`: a cell's rows over
+  iterations and what it ended with.
+- :class:`Diagnostics`: an optional per-iteration hook for quantities only one system can
+  compute.
+- :class:`Cell`: one compiled learning cell's programs; :class:`EvalNoise`: the seeds' test
+  noise in the layout the test rollouts read.
+
+They are NamedTuples of arrays and pure functions, so they pass through ``jit`` and ``vmap``.
+"""
+
+from collections.abc import Callable
+from typing import Any, NamedTuple
+
+import jax
+import numpy as np
+
+from loopid.algorithms.plant import Transitions
+
+
+class SolverInfo(NamedTuple):
+    """The optimal-control solve's status: ``converged`` and the closed-loop spectral radius."""
+
+    converged: jax.Array
+    spectral_radius: jax.Array
+
+
+class Agent(NamedTuple):
+    """Model class + online learner + optimal-control solver, as pure functions.
+
+    - ``init() -> state``: the learner's initial state (the initial model).
+    - ``update(state, batch: Transitions) -> state``: one online-learning step on a batch (masked
+      rows ignored).
+    - ``policy(state) -> (K [horizon, m, n], SolverInfo)``: solve the optimal-control problem on
+      the current model.
+    - ``loss(state, batch) -> [b]``: per-row prediction loss of the current model.
+    - ``policies(states) -> (K [S, horizon, m, n], SolverInfo [S])`` (optional): ``policy`` of
+      every seed (a leading seed axis), in whatever way suits the solver (batched, or seed by
+      seed so that a ``cond`` skips the branch it does not take); default seed by seed.
+    - ``params(state) -> {name: array}`` (optional): the learned model's parameters, what a run
+      saves of it (:attr:`Trace.final`).
+    """
+
+    init: Callable[[], Any]
+    update: Callable[[Any, Transitions], Any]
+    policy: Callable[[Any], tuple[jax.Array, SolverInfo]]
+    loss: Callable[[Any, Transitions], jax.Array]
+    policies: Callable[[Any], tuple[jax.Array, SolverInfo]] | None = None
+    params: Callable[[Any], dict] | None = None
+
+
+class Row(NamedTuple):
+    """One iteration's results, per seed (leaves ``[S]``); stacked over iterations in a Trace.
+
+    - ``test_cost``: mean capped total cost over the test trajectories;
+    - ``test_cost_median``: their median;
+    - ``diverged``: how many reached the cap or a non-finite state;
+    - ``loss_nu`` / ``loss_policy``: the model's mean squared prediction error, before the update,
+      on this iteration's ν draws / policy draws (0 when there were none);
+    - ``online_loss``: running average over iterations of the loss on the trained batch, before
+      each update (the no-regret learner's average online loss);
+    - ``policy_samples``: how many of the m trained transitions came from the policy;
+    - ``valid_samples``: how many were usable (not cut by the safe region);
+    - ``solver_converged``, ``spectral_radius``: the optimal-control solve's status;
+    - ``extra``: ``{name: [S] array}`` from a :class:`Diagnostics` hook (empty without one).
+    """
+
+    test_cost: jax.Array
+    test_cost_median: jax.Array
+    diverged: jax.Array
+    loss_nu: jax.Array
+    loss_policy: jax.Array
+    online_loss: jax.Array
+    policy_samples: jax.Array
+    valid_samples: jax.Array
+    solver_converged: jax.Array
+    spectral_radius: jax.Array
+    extra: dict
+
+
+class Diagnostics(NamedTuple):
+    """An optional per-iteration hook for quantities only a particular system can compute (the
+    exact finite-MDP bounds, say). ``init() -> state``; ``update(state, learner_state, K, p, n)
+    -> (state, {name: scalar})`` runs after each solve (iteration n, policy ``K``, policy
+    fraction ``p`` of the batch that was just learned from; ``p = 0`` at n = 1). The names become
+    extra result columns."""
+
+    init: Callable[[], Any]
+    update: Callable[..., tuple[Any, dict]]
+
+
+class Trace(NamedTuple):
+    """All iterations of one cell: ``iteration [N]``, ``samples [N]`` (collected before the
+    policy of that iteration was solved), ``rows`` (a :class:`Row` with leaves ``[S, N]``) and
+    ``final``: what the cell ended with, ``{name: [S, ...] array}``: ``K`` the last policy's
+    gains, the model's parameters (:attr:`Agent.params`), and ``best_K`` / ``history`` (every
+    policy) when the test policy is the best one or the mixture."""
+
+    seeds: np.ndarray
+    iteration: np.ndarray
+    samples: np.ndarray
+    rows: Row
+    final: dict | None = None
+
+
+class Cell(NamedTuple):
+    """One compiled learning cell (:func:`make_cell`): ``start(keys, noise) -> (carry, Row)``,
+    ``step(carry, keys, noise, n, p, which) -> (carry, Row)`` and ``noise(keys) -> EvalNoise``
+    (the seeds' test noise, :func:`noise_program`), each compiled once and reused by every
+    method that shares the cell."""
+
+    start: Callable
+    step: Callable
+    noise: Callable
+
+
+class EvalNoise(NamedTuple):
+    """The test noise of every seed, ``test [horizon, n_noise, S, n_test]`` (the column layout
+    of :meth:`loopid.algorithms.plant.Plant.eval_seeds`), and for ``best`` the selection noise
+    ``select``, likewise."""
+
+    test: jax.Array
+    select: jax.Array
