@@ -38,6 +38,7 @@ from typing import Any, NamedTuple
 import jax
 import jax.numpy as jnp
 
+from loopid.algorithms.closed_loop import DelayedLoop
 from loopid.algorithms.plant import Plant, Transitions, clean, quadratic_form
 from loopid.control.mpc import Replanner, empty_plan, local_action, replan
 
@@ -75,7 +76,8 @@ def mpc_plant(plant: Plant, planner: Replanner) -> MPCPlant:
     d, std, horizon, every = int(task.delay), float(task.noise_std), plant.horizon, planner.every
     blocks = -(-horizon // every)
     length = blocks * every
-    memory0 = jnp.zeros((d, m), jnp.float64)
+    loop = DelayedLoop("fifo", d)  # the only reading MPC flies with a delay (at d = 0 both agree)
+    memory0 = loop.memory0(n, m)
     step_delayed, to_error = dynamics.step_delayed, dynamics.to_error
     quad_Q, quad_R = quadratic_form(task.Q), quadratic_form(task.R)
     stop_norm, cost_cap = plant.stop_norm, plant.cost_cap
@@ -102,7 +104,7 @@ def mpc_plant(plant: Plant, planner: Replanner) -> MPCPlant:
                 live = tau < horizon
                 dx = to_error(x, target[jnp.minimum(tau, horizon)])
                 du = local_action(planner, plan, dx, j)
-                x_next, memory_next = step_delayed(x, memory, du, w)
+                x_next, memory_next = loop.act(step_delayed, x, memory, du, w)
                 total = total + jnp.where(live, quad_Q(dx) + quad_R(du), 0.0)
                 x = jnp.where(live, x_next, x)
                 memory = jnp.where(live, memory_next, memory)
@@ -151,7 +153,7 @@ def mpc_plant(plant: Plant, planner: Replanner) -> MPCPlant:
                 du = local_action(planner, plan, dx, j) + e
                 size = jnp.linalg.norm(jnp.concatenate([dx[:-1], du]))
                 safe = jnp.isfinite(size) & (size <= stop_norm)
-                x_next, memory_next = step_delayed(x, memory, du, w)
+                x_next, memory_next = loop.act(step_delayed, x, memory, du, w)
                 dx_next = to_error(x_next, target[tau + 1])
                 end = ~idle & (~safe | (tau + 1 >= horizon))
                 go = ~idle & ~end

@@ -29,9 +29,10 @@ and the reference ``eval_seeds`` is tested against.
 Policies are time-varying affine gains in error coordinates, ``K: [horizon, m, n]``: the error
 state ends with the constant 1, so the last column of ``K_t`` is the feedforward term.
 
-Two readings of a delay of d steps (SPEC §5.1, ``delay_mode``):
+Two readings of a delay of d steps (``delay_mode``; each closed-loop step goes through
+:class:`loopid.algorithms.closed_loop.DelayedLoop`):
 
-- ``"fifo"`` (SPEC §3): the policy commands ``Δu_t = −K_t Δx_t`` and the simulator applies the
+- ``"fifo"``: the policy commands ``Δu_t = −K_t Δx_t`` and the simulator applies the
   change commanded d steps earlier (a FIFO of commands, zeros at the start). The learner records
   the commanded change, ``(x_t, Δu_t, x_{t+1})``, which is not Markov in ``x_t``.
 - ``"latency"`` (the course code that ships the simulator): the policy acts on the error state
@@ -51,6 +52,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from loopid.algorithms.closed_loop import DelayedLoop, check_delay_mode
 from loopid.systems.base import Dynamics
 from loopid.systems.tasks import Task
 
@@ -201,7 +203,8 @@ def make_plant(
       nu_pending: delayed-query convention for ν samples under ``fifo``: ``"hold"``, ``"zero"``
         or ``"rollout"`` (SPEC §3, §5.1; :data:`NU_PENDING`).
       cost_cap: a test trajectory's total cost is capped here and then counts as diverged.
-      delay_mode: ``"fifo"`` or ``"latency"`` (module docstring; :data:`DELAY_MODES`).
+      delay_mode: ``"fifo"`` or ``"latency"`` (module docstring;
+        :data:`~loopid.algorithms.closed_loop.DELAY_MODES`).
     """
     check_delay_reading(delay_mode, nu_pending)
     if not stop_norm > 0:
@@ -216,11 +219,11 @@ def make_plant(
     m = dynamics.n_action
     n = dynamics.n_error
     step_delayed, to_error = dynamics.step_delayed, dynamics.to_error
-    latency = delay_mode == "latency"
+    loop = DelayedLoop(delay_mode, d)
+    latency = loop.latency
     fifo0 = jnp.zeros((d, m), dtype=jnp.float64)
-    no_fifo = jnp.zeros((0, m), dtype=jnp.float64)
     # what the controller remembers between steps: commands (fifo) or observations (latency)
-    memory0 = jnp.zeros((d, n), dtype=jnp.float64) if latency else fifo0
+    memory0 = loop.memory0(n, m)
     quad_Q, quad_R = quadratic_form(task.Q), quadratic_form(task.R)
     if dynamics.columns:
         step_columns, error_columns = step_delayed, to_error
@@ -238,18 +241,11 @@ def make_plant(
             x, memory, tau = carry
             w, e = inp
             dx = to_error(x, target[tau])
-            if latency:  # act at once on the observation of d steps ago
-                observed = jnp.concatenate([memory, dx[None]], axis=0)
-                du = -K[jnp.maximum(tau - d, 0)] @ observed[0] + e
-            else:  # command now, applied d steps later
-                du = -K[tau] @ dx + e
+            seen, tau_gain, memory = loop.sense(memory, dx, tau)
+            du = -K[tau_gain] @ seen + e
             size = jnp.linalg.norm(jnp.concatenate([dx[:-1], du]))
             safe = jnp.isfinite(size) & (size <= stop_norm)
-            if latency:
-                x_next, _ = step_delayed(x, no_fifo, du, w)
-                memory_next = observed[1:]
-            else:
-                x_next, memory_next = step_delayed(x, memory, du, w)
+            x_next, memory_next = loop.act(step_delayed, x, memory, du, w)
             dx_next = to_error(x_next, target[tau + 1])
             restart = ~safe | (tau + 1 >= horizon)
             carry = (
@@ -265,8 +261,8 @@ def make_plant(
     def query(x: jax.Array, du: jax.Array, t: jax.Array, key: jax.Array) -> Transitions:
         """One generative query at raw state ``x``, change ``du``, target time ``t`` (unbatched)."""
         w = dynamics.noise_sequence(key, 1, std)[0]
-        if latency:
-            fifo = no_fifo
+        if latency:  # a plain one-step query
+            fifo = jnp.zeros((0, m), dtype=jnp.float64)
         else:
             fifo = fifo0 if nu_pending == "zero" else jnp.broadcast_to(du, (d, m))
         x_next, _ = step_delayed(x, fifo, du, w)
@@ -290,14 +286,9 @@ def make_plant(
             x, memory, total = carry
             w, tau = inp
             dx = to_error(x, target[tau])
-            if latency:
-                observed = jnp.concatenate([memory, dx[None]], axis=0)
-                du = gain(K[jnp.maximum(tau - d, 0)], observed[0])
-                x, _ = step_delayed(x, no_fifo, du, w)
-                memory = observed[1:]
-            else:
-                du = gain(K[tau], dx)
-                x, memory = step_delayed(x, memory, du, w)
+            seen, tau_gain, memory = loop.sense(memory, dx, tau)
+            du = gain(K[tau_gain], seen)
+            x, memory = loop.act(step_delayed, x, memory, du, w)
             total = total + quad_Q(dx) + quad_R(du)
             return (x, memory, total), None
 
@@ -319,25 +310,17 @@ def make_plant(
             K = K[:, jnp.maximum(jnp.arange(horizon) - d, 0)]
         Kc = jnp.moveaxis(K, 0, -1)  # [horizon, m, n, S]
         x = jnp.broadcast_to(x0[:, None], (x0.shape[0], b))
-        memory = jnp.zeros((d, n if latency else m, b), jnp.float64)
-        no_fifo_b = jnp.zeros((0, m, b), jnp.float64)
+        memory = loop.memory0(n, m, (b,))
 
         def body(carry, inp):
             x, memory, total = carry
             w, K_t, tau = inp
             dx = error_columns(x, target[tau])
-            if latency:
-                observed = jnp.concatenate([memory, dx[None]], axis=0)
-                dx_s = observed[0].reshape(n, S, n_test)
-                memory = observed[1:]
-            else:
-                dx_s = dx.reshape(n, S, n_test)
+            seen, _, memory = loop.sense(memory, dx, tau)  # K_t is already the gain's time
+            dx_s = seen.reshape(n, S, n_test)
             du = -sum(K_t[:, j, :, None] * dx_s[j] for j in range(n)).reshape(m, b)
             total = total + quad_Q(dx) + quad_R(du)
-            if latency:
-                x, _ = step_columns(x, no_fifo_b, du, w.reshape(-1, b))
-            else:
-                x, memory = step_columns(x, memory, du, w.reshape(-1, b))
+            x, memory = loop.act(step_columns, x, memory, du, w.reshape(-1, b))
             return (x, memory, total), None
 
         taus = jnp.arange(horizon, dtype=jnp.int32)
@@ -353,8 +336,6 @@ def make_plant(
     )  # fmt: skip
 
 
-#: Readings of a delay (SPEC §5.1): ``fifo`` (SPEC §3) or ``latency`` (module docstring).
-DELAY_MODES = ("fifo", "latency")
 #: Delayed ν queries under ``fifo`` (SPEC §3, §5.1): the pending FIFO filled with the queried
 #: action, left empty (zeros), or no query for ν_e/ν_en (the expert's own recorded transitions).
 NU_PENDING = ("hold", "zero", "rollout")
@@ -364,8 +345,7 @@ def check_delay_reading(delay_mode: str, nu_pending: str) -> None:
     """Raise ``ValueError`` (one line) for an unknown ``delay_mode`` or ``nu_pending``, or a
     ``nu_pending`` other than ``hold`` under ``latency`` (whose ν queries are plain one-step
     queries: nothing is pending)."""
-    if delay_mode not in DELAY_MODES:
-        raise ValueError(f"delay_mode must be one of {', '.join(DELAY_MODES)}, got {delay_mode!r}")
+    check_delay_mode(delay_mode)
     if nu_pending not in NU_PENDING:
         raise ValueError(f"nu_pending must be one of {', '.join(NU_PENDING)}, got {nu_pending!r}")
     if delay_mode == "latency" and nu_pending != "hold":

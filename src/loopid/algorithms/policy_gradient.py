@@ -133,6 +133,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from loopid.algorithms.closed_loop import DelayedLoop
 from loopid.algorithms.loop import (
     Agent,
     Row,
@@ -281,22 +282,25 @@ def make_pg_step(
     std = float(plant.task.noise_std)
     floor = float(np.sqrt(nu_state_var)) if nu_state_var > 0 else 1.0
     cap = float(cost_cap)
-    fifo0 = jnp.zeros((delay, m), jnp.float64)
+    # the baseline flies fixed gains, for which both delay readings are the same closed loop
+    loop = DelayedLoop("fifo", delay)
+    memory0 = loop.memory0(n, m)
 
     def rollout(theta, noise):
         """Capped log cost of H steps from μ and the error states visited ``[H, n]``."""
 
         def body(carry, inp):
-            x, fifo, total = carry
+            x, memory, total = carry
             w, tau = inp
             dx = plant.dynamics.to_error(x, target[tau])
-            du = -(base[tau] + theta) @ dx
+            seen, tau_gain, memory = loop.sense(memory, dx, tau)
+            du = -(base[tau_gain] + theta) @ seen
             total = total + dx @ Q @ dx + du @ R @ du
-            x, fifo = plant.dynamics.step_delayed(x, fifo, du, w)
-            return (x, fifo, total), dx
+            x, memory = loop.act(plant.dynamics.step_delayed, x, memory, du, w)
+            return (x, memory, total), dx
 
         taus = jnp.arange(H, dtype=jnp.int32)
-        (_, _, total), dxs = jax.lax.scan(body, (x0, fifo0, jnp.float64(0.0)), (noise, taus))
+        (_, _, total), dxs = jax.lax.scan(body, (x0, memory0, jnp.float64(0.0)), (noise, taus))
         total = jnp.where(jnp.isfinite(total), jnp.minimum(total, cap), cap)
         return jnp.log(jnp.maximum(total, jnp.finfo(jnp.float64).tiny)), dxs
 

@@ -20,37 +20,34 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from loopid.algorithms.closed_loop import DelayedLoop
 from loopid.systems import helicopter as h
 
 
 def fly(task, K, noise, delay_mode: str = "fifo") -> np.ndarray:
-    """States ``X [T+1, 21]`` of policy ``K [T, 4, 21]`` flying ``task`` under ``noise [T, 6]``."""
-    d = int(task.delay)
-    latency = delay_mode == "latency" and d > 0
+    """States ``X [T+1, 21]`` of policy ``K [T, 4, 21]`` flying ``task`` under ``noise [T, 6]``,
+    the delay acting as ``delay_mode`` reads it
+    (:class:`~loopid.algorithms.closed_loop.DelayedLoop`)."""
+    loop = DelayedLoop(delay_mode, int(task.delay))
     X = _fly(jnp.asarray(task.target), jnp.asarray(task.x0), jnp.asarray(K), jnp.asarray(noise),
-             d=d, latency=latency)  # fmt: skip
+             loop=loop)  # fmt: skip
     return np.asarray(X)
 
 
-@functools.partial(jax.jit, static_argnames=("d", "latency"))
-def _fly(target, x0, K, noise, *, d: int, latency: bool):
+@functools.partial(jax.jit, static_argnames=("loop",))
+def _fly(target, x0, K, noise, *, loop: DelayedLoop):
     T = K.shape[0]
 
     def body(carry, inp):
-        x, fifo, seen = carry
+        x, memory = carry
         t, w = inp
         dx = h.to_error(x, target[t])
-        if latency:
-            seen = jnp.concatenate([seen[1:], dx[None]], axis=0)  # seen[0] is Δx_{t−d}
-            du = jnp.where(t >= d, -K[jnp.maximum(t - d, 0)] @ seen[0], 0.0)
-            x, _ = h.step_delayed(x, jnp.zeros((0, h.N_ACTION)), du, w)
-        else:
-            x, fifo = h.step_delayed(x, fifo, -K[t] @ dx, w)
-        return (x, fifo, seen), x
+        seen, t_gain, memory = loop.sense(memory, dx, t)
+        x, memory = loop.act(h.step_delayed, x, memory, -K[t_gain] @ seen, w)
+        return (x, memory), x
 
-    fifo0 = jnp.zeros((0 if latency else d, h.N_ACTION))
-    seen0 = jnp.zeros((d + 1, h.N_STATE))
-    _, X = jax.lax.scan(body, (x0, fifo0, seen0), (jnp.arange(T), noise[:T]))
+    memory0 = loop.memory0(h.N_STATE, h.N_ACTION)
+    _, X = jax.lax.scan(body, (x0, memory0), (jnp.arange(T), noise[:T]))
     return jnp.concatenate([x0[None], X], axis=0)
 
 
