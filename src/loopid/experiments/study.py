@@ -327,6 +327,7 @@ def study_text(
     *,
     command_s: float | None,
     seeds: int,
+    cells_s: tuple[int, float] | None = None,
     prediction: list[str] | None = None,
 ) -> str:
     """The Markdown of ``study.md``."""
@@ -348,11 +349,17 @@ def study_text(
         "",
     ]
     if command_s is not None:
-        L += [
+        line = (
             f"Wall time of this command: {command_s:.0f} s ({jax.default_backend()}, "
-            f"{_cpus()} CPUs).",
-            "",
-        ]
+            f"{_cpus()} CPUs)."
+        )
+        if cells_s is not None:
+            line += (
+                f" Its {cells_s[0]} cells took {cells_s[1]:.0f} s in all as each recorded it "
+                "(cells shared or finished by an earlier, resumed run keep the time of the run "
+                "that computed them; cells computed by parallel workers overlap)."
+            )
+        L += [line, ""]
     L += ["## Final medians", "", *medians_table(table), ""]
     L += ["## The paper's findings under each reading", ""]
     L += [
@@ -461,11 +468,18 @@ def _cpus() -> int:
 def write_outputs(
     out: Path, table: pa.Table, base: dict[str, Scenario], *, command_s=None, prediction=None
 ) -> None:
-    """``study.md`` and the figures from the study's table."""
+    """``study.md`` and the figures from the study's table; ``study.md`` also gives the time
+    the study's cells recorded (:func:`loopid.experiments.report.cell_times`)."""
+    from loopid.experiments.report import cell_times
+
     out = Path(out)
+    times = cell_times(out)
+    cells_s = (len(times), sum(t[0] for t in times.values())) if times else None
     seeds = len(np.unique(np.asarray(table["seed"])))
     figures(table, out)
-    text = study_text(table, base, command_s=command_s, seeds=seeds, prediction=prediction)
+    text = study_text(
+        table, base, command_s=command_s, seeds=seeds, prediction=prediction, cells_s=cells_s
+    )
     write_atomic_bytes(text.encode(), out / "study.md")
 
 
