@@ -160,3 +160,19 @@ def test_reproduce_quick_literal_equals_the_table_before_the_defaults_changed(tm
     assert ours.equals(pinned)
     report = (out / "report.md").read_text()
     assert "Readings: literal (delay_mode = fifo" in report
+
+
+def test_an_older_run_directory_reads_back_with_the_readings_it_ran(tmp_path):
+    """``loopid plot``, ``evaluate``, ``animate`` and ``loopid.load`` rebuild a run's scenarios
+    from its ``config.toml``: one from before the readings were fields ran the literal ones,
+    and one that records them keeps them."""
+    from loopid.experiments.execute import run_family
+    from loopid.experiments.rundir import to_toml
+
+    old = _config(None, drop=READING_FIELDS, names=("hover-delay",))
+    (tmp_path / "config.toml").write_text(to_toml(old))
+    _, configs = run_family(tmp_path)
+    assert preset_of(dataclasses.asdict(configs["hover-delay"])) == "literal"
+    (tmp_path / "config.toml").write_text(to_toml(_config(None, names=("hover-delay",))))
+    _, configs = run_family(tmp_path)
+    assert preset_of(dataclasses.asdict(configs["hover-delay"])) == "probable"

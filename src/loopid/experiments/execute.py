@@ -41,6 +41,7 @@ from loopid.experiments.executors import (
     ray_session,
 )
 from loopid.experiments.families import FAMILIES, Family, family_of, scenario_names
+from loopid.experiments.readings import readings_of
 from loopid.experiments.report import cell_times, report_text
 from loopid.experiments.results import trace_table, with_metadata, write_atomic_bytes
 from loopid.experiments.rundir import RunDir
@@ -357,8 +358,11 @@ def run_family(run_dir) -> tuple[Family | None, dict[str, Scenario]]:
         if name not in FAMILIES:
             raise ValueError(f"{cfg_file}: unknown family {name!r}")
         family = FAMILIES[name]
+        tables = config.get("scenario", {})
+        if name == "helicopter":  # an older config.toml without reading fields ran the literal ones
+            tables = {n: {**d, **readings_of(d)} for n, d in tables.items()}
         try:
-            configs = {n: family.config(**d) for n, d in config.get("scenario", {}).items()}
+            configs = {n: family.config(**d) for n, d in tables.items()}
         except (TypeError, ValueError) as e:
             raise ValueError(f"{cfg_file}: {' '.join(str(e).split())}") from None
         return family, configs
