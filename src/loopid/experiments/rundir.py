@@ -40,7 +40,7 @@ def _normal(config: dict) -> dict:
     if "seeds" in run:
         run["seeds"] = seeds_value(seeds_from_value(run["seeds"]))
     scenarios = {
-        name: {**s, **readings_of(s)} if run.get("family") == "helicopter" else s
+        name: {**s, **readings_of(s)} if run.get("family", "helicopter") == "helicopter" else s
         for name, s in config.get("scenario", {}).items()
     }
     return {**config, "run": run, "scenario": scenarios}
