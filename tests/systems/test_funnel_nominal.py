@@ -1,6 +1,7 @@
 """funnel_nominal: the four readings of the funnel's nominal model (SPEC §4.2, §5.2).
 
-"spec" is today's runner nominal bit for bit; each reading's prediction equals its formula,
+"spec" is the runner's nominal under the literal readings, bit for bit, and the runner's default
+nominal is "heading"; each reading's prediction equals its formula,
 computed here independently, along the expert's flight; the one-step prediction errors land near
 SPEC §5.2's independent figures (spec 0.49, no-increment 0.47, drift 0.31, heading 0.09, true
 step 0.18).
@@ -55,7 +56,12 @@ def flight(funnel):
 @pytest.mark.parametrize("pads", [True, False])
 def test_spec_is_the_runner_nominal_bit_for_bit(funnel, pads):
     if pads:
-        plant, today = funnel.plant, funnel.nominal
+        plant = funnel.plant
+        # the packaged scenario's runner flies the default reading, heading
+        default = funnel_nominal("heading", plant.task)
+        np.testing.assert_array_equal(funnel.nominal.A, default.A)
+        np.testing.assert_array_equal(funnel.nominal.B, default.B)
+        today = nominal_model(plant, "spec")
         assert today.A.shape == (599, 21, 21)
     else:  # the runner's nominal of the 400-step variant, without its (slow) expert
         plant = helicopter_plant(make_task("funnel", pads=False))
