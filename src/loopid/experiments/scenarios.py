@@ -1,7 +1,9 @@
-"""Experiment scenarios: every protocol setting of SPEC §4.4, with SPEC's values as defaults.
+"""Experiment scenarios: every setting of the paper's experimental protocol, with the paper's
+values and, for the details it leaves open, the probable readings as defaults.
 
-A :class:`Scenario` is one frozen record; every *(choice)* of the SPEC is a field, and the whole
-record is written into each run directory's ``config.toml``. The paper's three panels are TOML
+A :class:`Scenario` is one frozen record; every setting and every reading
+(:mod:`loopid.experiments.readings`) is a field, and the whole record is written into each run
+directory's ``config.toml``. The paper's three panels are TOML
 files shipped in the package (``experiments/scenarios/{hover,hover-delay,funnel}.toml``, every
 field spelled out); ``SCENARIOS`` holds them, :func:`scenario` returns one with fields overridden
 and validated, and :func:`read_config` reads a user's ``--config`` TOML.
