@@ -323,7 +323,7 @@ def reproduce(
     from loopid.algorithms.methods import METHODS
     from loopid.experiments.executors import check_executor
     from loopid.experiments.families import mdp
-    from loopid.experiments.readings import READING_FIELDS
+    from loopid.experiments.readings import preset
     from loopid.experiments.scenarios import SCENARIOS
 
     t0 = time.perf_counter()
@@ -331,7 +331,7 @@ def reproduce(
     workers = _workers(executor, workers)
     changes = _protocol_changes(quick, seeds)
     if readings is not None:
-        changes.update(_preset(readings, READING_FIELDS, "reproduce"))
+        changes.update(preset(readings))
     scenarios = [s.replace(**changes) for s in SCENARIOS.values()]
     _execute(
         out, scenarios, list(METHODS), quiet=quiet, executor=executor, ray_address=ray_address,

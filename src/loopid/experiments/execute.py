@@ -41,10 +41,9 @@ from loopid.experiments.executors import (
     ray_session,
 )
 from loopid.experiments.families import FAMILIES, Family, family_of, scenario_names
-from loopid.experiments.readings import readings_of
 from loopid.experiments.report import cell_times, report_text
 from loopid.experiments.results import trace_table, with_metadata, write_atomic_bytes
-from loopid.experiments.rundir import RunDir
+from loopid.experiments.rundir import RunDir, normalized
 
 #: A scenario of any family (its config dataclass).
 Scenario = Any
@@ -358,9 +357,7 @@ def run_family(run_dir) -> tuple[Family | None, dict[str, Scenario]]:
         if name not in FAMILIES:
             raise ValueError(f"{cfg_file}: unknown family {name!r}")
         family = FAMILIES[name]
-        tables = config.get("scenario", {})
-        if name == "helicopter":  # an older config.toml without reading fields ran the literal ones
-            tables = {n: {**d, **readings_of(d)} for n, d in tables.items()}
+        tables = normalized(config).get("scenario", {})  # older files: the readings they ran
         try:
             configs = {n: family.config(**d) for n, d in tables.items()}
         except (TypeError, ValueError) as e:

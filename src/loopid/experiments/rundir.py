@@ -32,7 +32,7 @@ def to_toml(config: dict) -> str:
     return tomli_w.dumps(config)
 
 
-def _normal(config: dict) -> dict:
+def normalized(config: dict) -> dict:
     """``config`` in today's form: its seeds as :func:`seeds_value` writes them (older
     ``config.toml`` files list them all), and a helicopter scenario's reading fields spelled out
     (older ones lack them: they ran the literal readings, :func:`readings_of`)."""
@@ -61,8 +61,9 @@ class RunDir:
         if cfg_file.exists():
             old = tomllib.loads(cfg_file.read_text())
             new = tomllib.loads(to_toml(config))
-            if _normal(old) != _normal(new):
-                hint = continue_hint(_normal(old), _normal(new))
+            old, new = normalized(old), normalized(new)
+            if old != new:
+                hint = continue_hint(old, new)
                 if hint is not None:
                     raise ValueError(
                         f"{self.path} holds a run made under other readings; continue it with "

@@ -22,7 +22,13 @@ from loopid.algorithms.policy_gradient import SAMPLES_MODES as PG_SAMPLES
 from loopid.algorithms.policy_gradient import UPDATES as PG_UPDATES
 from loopid.experiments import model_planner
 from loopid.experiments.config import check_int, check_number, read_flat_file, replaced
-from loopid.experiments.readings import PRESETS, READING_FIELDS, reading_text, readings_line
+from loopid.experiments.readings import (
+    DEFAULT_PRESET,
+    PRESETS,
+    READING_FIELDS,
+    reading_text,
+    readings_line,
+)
 from loopid.systems.funnel_nominal import FUNNEL_NOMINALS
 from loopid.systems.tasks import TASK_DELAYS, TASK_NAMES
 
@@ -72,16 +78,16 @@ class Scenario(model_planner.ModelPlanner):
     seeds: int = 20
     noise_std: float | None = None
     delay: int | None = None
-    pads: bool = PRESETS["probable"]["pads"]
+    pads: bool = PRESETS[DEFAULT_PRESET]["pads"]
     sampling: str = "trajectory"
     gamma: float = 0.99
     dagger_fraction: float = 0.5
     stop_norm: float = 5.0
-    nu_pending: str = PRESETS["probable"]["nu_pending"]
-    delay_mode: str = PRESETS["probable"]["delay_mode"]
-    funnel_nominal: str = PRESETS["probable"]["funnel_nominal"]
-    pg_samples: str = PRESETS["probable"]["pg_samples"]
-    pg_update: str = PRESETS["probable"]["pg_update"]
+    nu_pending: str = PRESETS[DEFAULT_PRESET]["nu_pending"]
+    delay_mode: str = PRESETS[DEFAULT_PRESET]["delay_mode"]
+    funnel_nominal: str = PRESETS[DEFAULT_PRESET]["funnel_nominal"]
+    pg_samples: str = PRESETS[DEFAULT_PRESET]["pg_samples"]
+    pg_update: str = PRESETS[DEFAULT_PRESET]["pg_update"]
     nu_state_var: float = 0.0025
     nu_action_var: float = 0.0001
     expert_action_var: float = 0.0001

@@ -47,7 +47,7 @@ import pyarrow.compute as pc
 
 from loopid.algorithms.methods import LEARNING_METHODS, METHODS
 from loopid.experiments.config import seeds_from_value
-from loopid.experiments.readings import PRESETS, READING_FIELDS, reading_text, readings_of
+from loopid.experiments.readings import DEFAULT_PRESET, PRESETS, READING_FIELDS, reading_text
 from loopid.experiments.results import concat, write_atomic_bytes
 from loopid.experiments.scenarios import SCENARIOS, Scenario
 
@@ -118,7 +118,7 @@ READINGS: tuple[Reading, ...] = (
 )  # fmt: skip
 BY_ID = {r.id: r for r in READINGS}
 FIGURES = ("delay", "funnel", "pg", "literal")
-DEFAULT = "probable"
+DEFAULT = DEFAULT_PRESET  # the default reading is the default preset, run by reproduce
 
 
 def scenario_name(r: Reading, panel: str) -> str:
@@ -132,9 +132,7 @@ def study_cells(base: dict[str, Scenario]) -> tuple[list[Scenario], dict[str, tu
     the methods each runs; a pure combination runs nothing of its own."""
     scenarios, methods = [], {}
     for r in READINGS:
-        for p in r.runs_on or r.panels:
-            if not r.methods:
-                continue
+        for p in (r.runs_on or r.panels) if r.methods else ():
             s = base[p].replace(name=scenario_name(r, p), **r.changes)
             scenarios.append(s)
             methods[s.name] = r.methods
@@ -157,17 +155,16 @@ def share_cells(out: Path, reproduce: Path, scenarios: Sequence[Scenario], seeds
     import shutil
     import tomllib
 
-    from loopid.experiments.rundir import RunDir
+    from loopid.experiments.rundir import RunDir, normalized
 
-    config = tomllib.loads((Path(reproduce) / "config.toml").read_text())
+    config = normalized(tomllib.loads((Path(reproduce) / "config.toml").read_text()))
     recorded = seeds_from_value(config.get("run", {}).get("seeds", []))
     if recorded.tolist() != [int(x) for x in seeds]:
         return []
     theirs, ours = RunDir(reproduce), RunDir(out)
     copied = []
     for s in scenarios:
-        theirs_s = config.get("scenario", {}).get(s.name)
-        if theirs_s is None or {**theirs_s, **readings_of(theirs_s)} != s.to_dict():
+        if config.get("scenario", {}).get(s.name) != s.to_dict():
             continue
         for f in sorted(theirs.cells.glob(f"{s.name}__*.parquet")):
             target = ours.cells / f.name
@@ -383,7 +380,7 @@ def study_text(
     for r in READINGS:
         if r.id not in found:
             continue
-        changed = {k: v for k, v in r.changes.items() if PRESETS[DEFAULT].get(k) != v}
+        changed = {k: v for k, v in r.changes.items() if PRESETS[DEFAULT_PRESET].get(k) != v}
         changes = ", ".join(f"`{k} = {reading_text(v)}`" for k, v in changed.items()) or "none"
         L += [
             f"### {r.id}: {r.label}",
