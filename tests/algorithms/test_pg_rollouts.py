@@ -21,6 +21,7 @@ from loopid.algorithms.policy_gradient import (
     budget,
     init_state,
     make_pg_step,
+    make_rollouts,
     run_policy_gradient,
     spent,
 )
@@ -269,3 +270,36 @@ def test_unknown_update_is_one_line():
             update="bold",
             noise_std=None,
         )
+
+
+@pytest.mark.parametrize("shared", [True, False])
+def test_rollouts_are_each_gains_own_closed_loop(lq, shared):
+    """The column-batched rollouts equal, rollout by rollout, a plain step-by-step loop of the
+    same closed loop (NumPy, one rollout at a time): a delay of one step, a time-varying base
+    gain, each rollout its own offset, the noise shared or one draw each, and a capped rollout."""
+    task = lq.plant.task._replace(delay=1)
+    plant = make_plant(task, lq.plant.dynamics, stop_norm=50.0)
+    rng = np.random.default_rng(3)
+    H, R, cap = 60, 4, 1e3
+    base = np.asarray(lq.K_opt)[None] + 0.05 * rng.normal(size=(T, M_ACT, K_STATE + 1))
+    offsets = 0.05 * rng.normal(size=(R, M_ACT, K_STATE + 1))
+    offsets[-1] = -3.0  # an unstable loop: its cost reaches the cap
+    noise = 0.1 * rng.normal(size=(H, K_STATE) if shared else (R, H, K_STATE))
+    got = make_rollouts(plant, jnp.asarray(base), H, cap)(jnp.asarray(offsets), jnp.asarray(noise))
+
+    step = jax.jit(plant.dynamics.step_delayed)  # the system's own step, no delay
+    no_delay = jnp.zeros((0, M_ACT))
+    Q, Rm, x0 = np.asarray(task.Q), np.asarray(task.R), np.asarray(task.x0)
+    want = []
+    for r in range(R):
+        x, pending, total = x0.copy(), np.zeros(M_ACT), 0.0
+        w = noise if shared else noise[r]
+        for tau in range(H):
+            dx = np.append(x, 1.0)
+            du = -(base[tau] + offsets[r]) @ dx
+            total += dx @ Q @ dx + du @ Rm @ du
+            x = np.asarray(step(x, no_delay, pending, w[tau])[0])
+            pending = du  # the change commanded now acts one step later
+        want.append(np.log(min(total, cap)) if np.isfinite(total) else np.log(cap))
+    np.testing.assert_allclose(np.asarray(got), want, rtol=1e-12)
+    assert float(got[-1]) == np.log(cap)

@@ -3,12 +3,15 @@
 
 The pinned table ``tests/fixtures/reproduce_quick_literal.parquet`` is ``loopid reproduce
 --quick`` (helicopter panels) as computed before the default readings changed, when the literal
-readings were the defaults: ``--readings literal`` must give it bit for bit.
+readings were the defaults: ``--readings literal`` must give it bit for bit, except the hover
+panels' policy-gradient rows (to 1e-12: their rollouts' sums now run in another order).
 """
 
 import dataclasses
 from pathlib import Path
 
+import numpy as np
+import pyarrow.compute as pc
 import pyarrow.parquet as pq
 import pytest
 
@@ -157,7 +160,20 @@ def test_reproduce_quick_literal_equals_the_table_before_the_defaults_changed(tm
     ours = pq.read_table(out / "results.parquet")
     pinned = pq.read_table(PINNED)
     assert ours.num_rows == pinned.num_rows == 216
-    assert ours.equals(pinned)
+    # every learning method, the expert and the funnel's policy gradient bit for bit; the hover
+    # panels' policy gradient to 1e-12 (its rollouts now run as one column batch, whose sums
+    # differ from the pinned batched products in the last bits), with the same divergences
+    hover_pg = pc.and_(
+        pc.equal(ours["method"], "pg"), pc.invert(pc.equal(ours["scenario"], "funnel"))
+    )
+    assert ours.filter(pc.invert(hover_pg)).equals(pinned.filter(pc.invert(hover_pg)))
+    a, b = ours.filter(hover_pg), pinned.filter(hover_pg)
+    assert a.num_rows == 2 * 2 * 4  # 2 scenarios x 2 seeds x 4 iterations
+    for column in ("test_cost", "test_cost_median"):
+        np.testing.assert_allclose(a[column].to_numpy(), b[column].to_numpy(), rtol=1e-12)
+    assert a.drop_columns(["test_cost", "test_cost_median"]).equals(
+        b.drop_columns(["test_cost", "test_cost_median"])
+    )
     report = (out / "report.md").read_text()
     assert "Readings: literal (delay_mode = fifo" in report
 

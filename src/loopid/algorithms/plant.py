@@ -179,6 +179,18 @@ class Plant(NamedTuple):
         return costs[0], diverged[0]
 
 
+def column_ops(dynamics: Dynamics) -> tuple[Callable, Callable]:
+    """``(step_columns, error_columns)``: the system's ``step_delayed`` and ``to_error`` on column
+    batches (``x [n_x, b]``, ``fifo [d, m, b]``, ``du [m, b]``, ``w [n_noise, b]``, an unbatched
+    target): the functions themselves when the system takes columns (``dynamics.columns``),
+    otherwise ``jax.vmap`` of them over the trailing axis (same numbers, slower on a CPU)."""
+    if dynamics.columns:
+        return dynamics.step_delayed, dynamics.to_error
+    step = jax.vmap(dynamics.step_delayed, in_axes=-1, out_axes=-1)
+    error = jax.vmap(dynamics.to_error, in_axes=(-1, None), out_axes=-1)
+    return step, error
+
+
 def noise_columns(noise: jax.Array) -> jax.Array:
     """Test noise ``[S, n_test, horizon, n_noise]`` (per seed, per trajectory) in the layout of
     :meth:`Plant.eval_seeds`, ``[horizon, n_noise, S, n_test]``."""
@@ -225,11 +237,7 @@ def make_plant(
     # what the controller remembers between steps: commands (fifo) or observations (latency)
     memory0 = loop.memory0(n, m)
     quad_Q, quad_R = quadratic_form(task.Q), quadratic_form(task.R)
-    if dynamics.columns:
-        step_columns, error_columns = step_delayed, to_error
-    else:  # vmap over the trailing batch axis of column batches
-        step_columns = jax.vmap(step_delayed, in_axes=-1, out_axes=-1)
-        error_columns = jax.vmap(to_error, in_axes=(-1, None), out_axes=-1)
+    step_columns, error_columns = column_ops(dynamics)
 
     def rollout(K: jax.Array, key: jax.Array, action_std: float | jax.Array = 0.0) -> Transitions:
         """One training run of ``horizon`` steps with restarts; ``K: [horizon, m, n]``."""
