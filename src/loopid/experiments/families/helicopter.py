@@ -216,6 +216,14 @@ def _cell(key: Scenario):
     return nus, cell
 
 
+@lru_cache(maxsize=4)
+def _noise(key: Scenario, seeds: tuple[int, ...]):
+    """The test noise of ``seeds`` (:class:`loopid.algorithms.loop.EvalNoise`), computed once per
+    scenario and seed chunk and shared by every method a process runs on them (a pure function
+    of the seeds: each method reads the same arrays it would have drawn itself)."""
+    return _cell(key)[1].noise(seed_keys(np.asarray(seeds)))
+
+
 def cell(s: Scenario):
     """The ν samplers (ν_t, ν_e, ν_en) and the one compiled cell that DAgger, Batch and Abbeel
     share on this scenario, whichever ν they draw from (a traced switch)."""
@@ -237,7 +245,7 @@ def _run(method: str, s: Scenario, seeds: np.ndarray, progress: Progress | None)
     key = program_key(s)
     st = _setup(key)
     nus, compiled = _cell(key)
-    noise = compiled.noise(seed_keys(seeds))  # every method's test noise, one program
+    noise = _noise(key, tuple(int(seed) for seed in seeds))
     if method == "expert":
         return run_fixed_policy(
             st.plant, st.K_expert, seeds, iterations=s.iterations, samples=s.samples,
