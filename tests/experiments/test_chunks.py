@@ -1,6 +1,7 @@
 """Seed chunks (loopid.experiments.chunks): the plan, the same table whatever the chunking, resume
 after a kill, the memory estimate against a measured peak, and the one-line refusals."""
 
+import dataclasses
 import json
 import os
 import re
@@ -36,29 +37,35 @@ def test_split_pads_equal_chunks_and_covers_every_position_once():
     assert [(c.start, c.stop) for c in parts] == [(0, 2), (5, 7)]
 
 
-def test_plan_caps_chunks_for_speed_and_estimates_at_the_capped_size(tmp_path, monkeypatch):
-    """30 seeds that fit the budget whole still run in chunks of at most SPEED_SEEDS (3 of 10),
-    and the memory estimate is asked for that chunk's 10 seeds (the shape the run compiles)."""
+def test_plan_caps_chunks_for_speed_and_a_task_over_budget_comes_back_in_chunks_that_fit(
+    tmp_path, monkeypatch
+):
+    """30 seeds run in chunks of at most SPEED_SEEDS (3 of 10) whatever the budget; a task
+    measures its programs at its own 10 seeds before it runs and, over its share of the budget,
+    returns Oversized instead of rows; its seeds then come back as chunks that fit."""
     from loopid.experiments import execute
     from loopid.experiments.rundir import RunDir
 
-    asked = []
-
-    def estimate(s, method, seeds, progress=None):
-        asked.append(len(seeds))
-        return 1000 * len(seeds)
-
-    monkeypatch.setattr(execute, "estimate_memory", estimate)
     s = scenario("hover", seeds=30, **SMALL)
     family = execute.family_of(s)
-    jobs = execute._plan(RunDir(tmp_path), [(s, "dagger-t")], np.arange(30), family, 10**9,
-                         "local", {"workers": 1})  # fmt: skip
-    assert chunks.SPEED_SEEDS == 12 and asked == [10]
+    jobs = execute._plan(RunDir(tmp_path), [(s, "dagger-t")], np.arange(30), family)
+    assert chunks.SPEED_SEEDS == 12
     assert [job.part for job in jobs] == [(0, 10), (10, 20), (20, 30)]
-    # a budget below the cap decides: 6 seeds fit (6,000 bytes), so 5 chunks of 6
-    jobs = execute._plan(RunDir(tmp_path), [(s, "dagger-t")], np.arange(30), family, 6000,
-                         "local", {"workers": 1})  # fmt: skip
-    assert [len(job.seeds) for job in jobs] == [6] * 5
+    asked = []
+
+    def memory(s, method, seeds):
+        asked.append(seeds)
+        return 1000 * seeds
+
+    measured = dataclasses.replace(family, memory=memory)
+    monkeypatch.setattr(execute, "family_of", lambda s: measured)
+    result = execute.run_chunk(s, "dagger-t", jobs[1].seeds, limit=6000)
+    assert result == execute.Oversized(10_000) and asked == [10]
+    # 6 seeds fit 6,000 bytes: positions 10..19 as 2 chunks of 5
+    again = execute._resplit(jobs[1], result.nbytes, np.arange(30), 6000)
+    assert [(job.part, len(job.seeds)) for job in again] == [((10, 15), 5), ((15, 20), 5)]
+    with pytest.raises(ValueError, match=r"^hover / dagger-t: a chunk of 3 seeds needs about"):
+        execute._resplit(jobs[1], result.nbytes, np.arange(30), 2000)
 
 
 def test_stacked_arrays_are_saved_as_their_join_one_piece_at_a_time(tmp_path):

@@ -7,9 +7,10 @@ A cell runs all its seeds as one vmapped program, so its memory grows with the s
 - **Estimate.** A family's ``memory(config, method, seeds) -> bytes`` gives the peak bytes of
   the cell's compiled programs for that many seeds, from XLA's own buffer assignment
   (:func:`loopid.algorithms.loop.cell_memory`): arguments + outputs + temporaries − donated
-  buffers, the largest over the programs a cell runs one after another. It is computed at the
-  cell's full seed count; the compilation it needs is the one the cell then runs (JAX reuses it
-  in the same process, the persistent compilation cache elsewhere).
+  buffers, the largest over the programs a cell runs one after another. Each task computes it
+  for its own seeds, in the process that runs it, before it runs
+  (:func:`loopid.experiments.execute.run_chunk`): the compilation it needs is the one the task
+  then runs (JAX reuses it), so it costs nothing extra.
 - **Budget** (:func:`budget`): ``--memory GB`` for all the processes computing at once, else
   :data:`DEFAULT_FRACTION` of the memory this machine has available (``MemAvailable``, within a
   cgroup's limit) less :data:`PROCESS_BYTES` per process; each process gets an equal share.

@@ -5,11 +5,17 @@ for any family (:mod:`loopid.experiments.families`).
 workers against the machine's CPUs and memory, that ``out`` can be written, that a run
 directory already there holds the same configuration), then:
 
-1. estimates each unfinished cell's memory (the family's ``memory``, through the executor) and
-   splits cells that do not fit the budget into seed chunks (:mod:`loopid.experiments.chunks`);
+1. splits each unfinished cell's missing seeds into chunks of at most
+   :data:`~loopid.experiments.chunks.SPEED_SEEDS` (families with a memory estimate;
+   :mod:`loopid.experiments.chunks`);
 2. hands the tasks (whole cells and chunks) to an executor
-   (:mod:`loopid.experiments.executors`) and saves each the moment it finishes, atomically: a
-   cell's artifacts, then its rows; a chunk's files, merged into its cell's once all are in;
+   (:mod:`loopid.experiments.executors`). A task first compiles its programs and reads their
+   memory from them (the family's ``memory``); one that needs more than its process's share of
+   the budget returns :class:`Oversized` instead of running, and its seeds go to a second round
+   in chunks sized from that measurement (:func:`loopid.experiments.chunks.chunk_size`). So the
+   estimate costs nothing extra: it is the compilation the task runs, in the process that runs
+   it. Each finished task is saved the moment it is in, atomically: a cell's artifacts, then
+   its rows; a chunk's files, merged into its cell's once all are in;
 3. rewrites ``results.parquet`` in the fixed scenario × method order after every cell.
 
 Rerunning the same call skips what is finished and ends with the same table, row for row. The
@@ -23,6 +29,7 @@ import tempfile
 import time
 import tomllib
 from collections.abc import Callable, Mapping, Sequence
+from functools import partial
 from pathlib import Path
 from typing import Any, NamedTuple
 
@@ -121,11 +128,33 @@ def _out_of_memory(e: BaseException) -> bool:
     return isinstance(e, MemoryError) or "RESOURCE_EXHAUSTED" in text or "Out of memory" in text
 
 
+class Oversized(NamedTuple):
+    """What a task returns instead of running when its programs need ``nbytes`` (at its seed
+    count), more than its process's share of the memory budget."""
+
+    nbytes: int
+
+
 def run_chunk(
-    s: Scenario, method: str, seeds, progress: Callable[[int, Row], None] | None = None
-) -> CellResult:
+    s: Scenario,
+    method: str,
+    seeds,
+    progress: Callable[[int, Row], None] | None = None,
+    *,
+    limit: int | None = None,
+) -> CellResult | Oversized:
     """What an executor runs: :func:`run_cell` on a whole cell's or one chunk's seeds; an
-    out-of-memory error from JAX becomes one line saying what to lower."""
+    out-of-memory error from JAX becomes one line saying what to lower.
+
+    ``limit``: the bytes this process may use. For a family with a memory estimate the task
+    first compiles its programs and reads their peak from them (``family.memory``, the same
+    compilation the run then reuses), and returns :class:`Oversized` instead of running when
+    it is above ``limit``."""
+    family = family_of(s)
+    if limit is not None and family.memory is not None:
+        nbytes = int(family.memory(s, method, len(seeds)))
+        if nbytes > limit:
+            return Oversized(nbytes)
     try:
         return run_cell(s, method, seeds, progress)
     except Exception as e:
@@ -135,12 +164,6 @@ def run_chunk(
                 "--memory (chunks are sized to it) or --workers"
             ) from None
         raise
-
-
-def estimate_memory(s: Scenario, method: str, seeds, progress=None) -> int:
-    """What an executor runs to plan a cell: the family's ``memory`` for ``len(seeds)`` seeds
-    (compiling the cell's programs for that many seeds, which its run then reuses)."""
-    return int(family_of(s).memory(s, method, len(seeds)))
 
 
 def check_writable(out) -> None:
@@ -248,75 +271,91 @@ def run_cells(
                 todo.append((s, m))
     processes = options.get("workers", 1) if executor_name == "local" else (os.cpu_count() or 1)
     limit = chunks.budget(memory, processes)  # each process computing at once gets its share
-    jobs = _plan(rd, todo, seeds, family, limit, executor_name, options)
+    jobs = _plan(rd, todo, seeds, family)
     cell_progress = _progress(rd, todo, seeds, on_cell)
-    for job, done in executor(executor_name)(jobs, run_chunk, on_job=cell_progress, **options):
-        s, method = job.scenario, job.method
-        rd.ensure(config)
-        count = job.part[1] - job.part[0]
-        if len(job.seeds) > count:  # seed-major rows: drop the padding
-            table = done.table.slice(0, count * s.iterations)
-            final = _first(done.final, count)
-            done = CellResult(table, seeds[slice(*job.part)], final, done.shared)
-        chunked = count < len(seeds)
-        if chunked:
-            files = chunks.ChunkFiles(rd.cells, s.name, method)
-            files.save(chunks.Chunk(*job.part, job.seeds), done.table, done.final)
-            if files.missing(len(seeds)):
-                continue
-            table, final = files.merged()
-            done = CellResult(table, seeds, final, done.shared)
-        t0 = time.perf_counter()
-        artifacts.write(rd.cells, s.name, method, family.name, done.seeds, done.final,
-                        s.to_dict(), done.shared)  # fmt: skip
-        table = with_metadata(done.table, artifacts_s=f"{time.perf_counter() - t0:.3f}")
-        rd.save_cell(s.name, method, table)  # last: a finished cell has its artifacts
-        if chunked:
-            chunks.ChunkFiles(rd.cells, s.name, method).remove()
-        rd.write_results(order)
-        if log:
-            meta = rd.cell_metadata(s.name, method)
-            last = np.asarray(table.column("iteration")) == s.iterations
-            final = np.median(np.asarray(table.column("test_cost"))[last])
-            parts = f", {meta['chunks']} chunks" if "chunks" in meta else ""
-            log(
-                f"{s.name} / {method}: {float(meta['wall_s']):.1f} s{parts}, "
-                f"final median cost {final:.4g}"
-            )
+    # first round: each task measures itself; those over budget come back as smaller chunks,
+    # sized from that measurement (chunks.chunk_size), and run in a second round as they are
+    rounds = [(jobs, partial(run_chunk, limit=limit))]
+    while rounds:
+        jobs, task = rounds.pop()
+        retry = []
+        for job, done in executor(executor_name)(jobs, task, on_job=cell_progress, **options):
+            if isinstance(done, Oversized):
+                retry += _resplit(job, done.nbytes, seeds, limit)
+            else:
+                _save(rd, config, order, family, seeds, job, done, log)
+        if retry:
+            rounds.append((retry, run_chunk))
     if not rd.exists():
         return rd.write_results(order, save=False)
     return rd.write_results(order)
+
+
+def _save(rd: RunDir, config, order, family: Family, seeds, job, done: CellResult, log) -> None:
+    """Save a finished task (module docstring): a whole cell's artifacts then rows, or a chunk's
+    files (merged into its cell's once all are in); then ``results.parquet``."""
+    s, method = job.scenario, job.method
+    rd.ensure(config)
+    count = job.part[1] - job.part[0]
+    if len(job.seeds) > count:  # seed-major rows: drop the padding
+        table = done.table.slice(0, count * s.iterations)
+        final = _first(done.final, count)
+        done = CellResult(table, seeds[slice(*job.part)], final, done.shared)
+    chunked = count < len(seeds)
+    if chunked:
+        files = chunks.ChunkFiles(rd.cells, s.name, method)
+        files.save(chunks.Chunk(*job.part, job.seeds), done.table, done.final)
+        if files.missing(len(seeds)):
+            return
+        table, final = files.merged()
+        done = CellResult(table, seeds, final, done.shared)
+    t0 = time.perf_counter()
+    artifacts.write(rd.cells, s.name, method, family.name, done.seeds, done.final,
+                    s.to_dict(), done.shared)  # fmt: skip
+    table = with_metadata(done.table, artifacts_s=f"{time.perf_counter() - t0:.3f}")
+    rd.save_cell(s.name, method, table)  # last: a finished cell has its artifacts
+    if chunked:
+        chunks.ChunkFiles(rd.cells, s.name, method).remove()
+    rd.write_results(order)
+    if log:
+        meta = rd.cell_metadata(s.name, method)
+        last = np.asarray(table.column("iteration")) == s.iterations
+        final = np.median(np.asarray(table.column("test_cost"))[last])
+        parts = f", {meta['chunks']} chunks" if "chunks" in meta else ""
+        log(
+            f"{s.name} / {method}: {float(meta['wall_s']):.1f} s{parts}, "
+            f"final median cost {final:.4g}"
+        )
 
 
 def _first(final: dict, count: int) -> dict:
     return {k: np.asarray(v)[:count] for k, v in final.items()}
 
 
-def _plan(rd: RunDir, todo, seeds: np.ndarray, family: Family, limit: int, executor_name, options):
-    """The tasks of the unfinished cells: each cell's missing seeds in chunks that fit ``limit``
-    bytes and, for families with a memory estimate, hold at most
-    :data:`loopid.experiments.chunks.SPEED_SEEDS`; a cell that is one chunk is saved as a cell,
-    with no chunk files."""
-    missing = {(s.name, m): chunks.ChunkFiles(rd.cells, s.name, m).missing(len(seeds))
-               for s, m in todo}  # fmt: skip
+def _plan(rd: RunDir, todo, seeds: np.ndarray, family: Family) -> list[Job]:
+    """The tasks of the unfinished cells: each cell's missing seeds, in chunks of at most
+    :data:`loopid.experiments.chunks.SPEED_SEEDS` (at least ``MIN_CHUNK``) for families with a
+    memory estimate, else whole; a cell that is one chunk is saved as a cell, with no chunk
+    files."""
     least = chunks.MIN_CHUNK if family.memory else 1  # chunked families: one lowering a seed
-    # chunked families: at most SPEED_SEEDS a chunk, and the estimate compiles that chunk's shape
     most = chunks.SPEED_SEEDS if family.memory else len(seeds)
-    first = {key: chunks.split(seeds, left, min(len(left), most), least)
-             for key, left in missing.items()}  # fmt: skip
-    estimates = [Job(s, m, first[s.name, m][0].seeds) for s, m in todo if family.memory]
-    sizes = {}
-    for job, nbytes in executor(executor_name)(estimates, estimate_memory, **options):
-        where = f"{job.scenario.name} / {job.method}"
-        sizes[job.scenario.name, job.method] = chunks.chunk_size(
-            nbytes, len(job.seeds), limit, where
-        )
     jobs = []
     for s, m in todo:
-        left = missing[s.name, m]
-        parts = chunks.split(seeds, left, sizes.get((s.name, m), len(left)), least)
+        left = chunks.ChunkFiles(rd.cells, s.name, m).missing(len(seeds))
+        parts = chunks.split(seeds, left, min(len(left), most), least)
         jobs += [Job(s, m, c.seeds, (c.start, c.stop)) for c in parts]
     return jobs
+
+
+def _resplit(job: Job, nbytes: int, seeds: np.ndarray, limit: int) -> list[Job]:
+    """An :class:`Oversized` task's seeds as chunks that fit ``limit``
+    (:func:`loopid.experiments.chunks.chunk_size`: the programs' memory is affine in the seeds,
+    so ``⌊S · limit / nbytes⌋`` of them fit); a one-line ``ValueError`` when not even
+    ``MIN_CHUNK`` do."""
+    where = f"{job.scenario.name} / {job.method}"
+    size = chunks.chunk_size(nbytes, len(job.seeds), limit, where)
+    parts = chunks.split(seeds, list(range(*job.part)), size)
+    return [Job(job.scenario, job.method, c.seeds, (c.start, c.stop)) for c in parts]
 
 
 def _progress(rd: RunDir, todo, seeds: np.ndarray, on_cell: ProgressFactory | None):

@@ -17,8 +17,8 @@
 
 An executor is a generator: ``executor(jobs, fn, on_job=..., **options)`` yields ``(job,
 result)`` as jobs finish (in any order), ``result`` being ``fn(scenario, method, seeds,
-progress=...)`` of the job (a cell's chunk: :func:`loopid.experiments.execute.run_chunk`, or its
-memory estimate); the caller saves each at once. A job is one task: a cell whose seeds fit one
+progress=...)`` of the job (a cell's chunk: :func:`loopid.experiments.execute.run_chunk`); the
+caller saves each at once. A job is one task: a cell whose seeds fit one
 chunk, or one chunk of a larger cell (:mod:`loopid.experiments.chunks`), so local workers and a
 Ray cluster spread a large seed count as they spread cells.
 """
