@@ -349,7 +349,9 @@ def _dlqr_affine_single(A, B, Q, R, max_iter, tol, rtol_residual) -> LQRSolution
     rhs = qz + Acl.T @ (Pz @ c)
     p = jnp.linalg.solve(lhs, rhs)
     p_ok = jnp.all(jnp.isfinite(p))
-    p = jnp.where(p_ok, p, _finite_or_zero(jnp.linalg.pinv(lhs) @ rhs))
+    # the pseudo-inverse (an SVD) only where the solve failed: one system runs one branch (a
+    # batch under vmap runs both and selects, the same numbers)
+    p = jax.lax.cond(p_ok, lambda: p, lambda: _finite_or_zero(jnp.linalg.pinv(lhs) @ rhs))
     S = R + G.T @ Pz @ G
     kff, _ = psd_solve(S, (G.T @ (Pz @ c + p))[:, None])
     kff = _finite_or_zero(kff[:, 0])
