@@ -126,7 +126,8 @@ def _methods(text: str) -> list[str]:
 
 
 def _workers(executor: str, workers: int | None) -> int:
-    """--workers: the local executor's worker processes (default: one per CPU, at most 4)."""
+    """--workers: the local executor's worker processes (default: one per CPU, at most 4; on an
+    accelerator one per device)."""
     from loopid.experiments.executors import check_workers, default_workers
 
     if workers is None:
@@ -156,8 +157,8 @@ EXECUTOR = typer.Option("local", "--executor", help="local (this machine) or ray
 WORKERS = typer.Option(
     None,
     "--workers",
-    help="local: worker processes, one cell each at a time (default: one per CPU, at most 4; "
-    "1 = in this process).",
+    help="local: worker processes, one cell each at a time (default: one per CPU, at most 4; on "
+    "a GPU one per device; 1 = in this process).",
 )
 RAY_ADDRESS = typer.Option(
     None, "--ray-address", help="Join this Ray cluster (default: start a local one)."
@@ -480,6 +481,9 @@ def main(argv: list[str] | None = None) -> None:
     """Console-script entry point: user errors exit 2 with one line, never a traceback."""
     from loopid.experiments.executors import compile_cache
 
+    # on a GPU no process takes most of the device's memory up front (worker processes, one per
+    # device, and this one would otherwise each claim 75 % of it); before JAX starts a backend
+    os.environ.setdefault("XLA_PYTHON_CLIENT_PREALLOCATE", "false")
     compile_cache()
     try:
         code = app(args=argv, standalone_mode=False)

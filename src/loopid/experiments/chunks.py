@@ -13,26 +13,27 @@ A cell runs all its seeds as one vmapped program, so its memory grows with the s
   then runs (JAX reuses it), so it costs nothing extra.
 - **Budget** (:func:`budget`): ``--memory GB`` for all the processes computing at once, else
   :data:`DEFAULT_FRACTION` of the memory this machine has available (``MemAvailable``, within a
-  cgroup's limit) less :data:`PROCESS_BYTES` per process; each process gets an equal share.
+  cgroup's limit) less :data:`PROCESS_BYTES` per process; each process gets an equal share. On
+  an accelerator the default is most of one device's memory, per process (one per device).
 - **Chunks** (:func:`chunk_size`, :func:`split`): the programs' memory is affine in the seed count,
   ``a + b·S`` with ``a ≥ 0``, so ``b ≤ M(S)/S`` and ``c = ⌊S · budget / M(S)⌋`` seeds fit
   (S: the seed count, at most :data:`SPEED_SEEDS`, the estimate is made at). The
   seeds are split into ``k = ⌈S / c⌉`` chunks of ``⌈S / k⌉``; the last is padded with copies
   of its last seed (dropped afterwards), so every chunk runs one compiled program.
-- **Speed cap** (:data:`SPEED_SEEDS`): a chunk also holds at most this many seeds, even when
-  more fit the budget, because the cost per seed grows with the chunk once a chunk's working
-  set outgrows the core's cache. The test rollouts, most of a cell's arithmetic, advance every
-  trajectory of the chunk one step at a time: per trajectory column the state, its error
-  coordinates, the change and that step's noise, ~600 B, so ~60 kB per seed at 100 test
-  trajectories, and a chunk of 12 seeds (~0.7 MB) stays inside this machine's 2 MB L2 where
-  one of 40 (~2.4 MB) does not. Measured on the hover DAgger cell (100 test trajectories, one
-  step after compilation, sizes interleaved in one process, best of 6-8, 2-core machine): per
-  seed 0.86x at 10 seeds, 0.90x at 15, 1.00 at 20 and 30, 1.04x at 40, 1.10x at 80 and 1.25x
-  at 200 seeds. A constant, not derived from the family: the working set per seed is the same
-  for the funnel (same state, same test count), and the finite-MDP cells' per-seed data (MB)
-  is out of cache at any chunk size. The cost of more chunks is a Python call per chunk and
-  iteration (~1 ms against ~100 ms of work) and their files. The memory estimate is made at
-  the capped chunk's size, so its compilation is the one the run reuses.
+- **Speed cap** (:data:`SPEED_SEEDS`, on a CPU; :func:`speed_seeds`): a chunk also holds at most
+  this many seeds, even when more fit the budget, because the cost per seed grows with the chunk
+  once a chunk's working set outgrows the core's cache. The test rollouts, most of a cell's
+  arithmetic, advance every trajectory of the chunk one step at a time: per trajectory column
+  the state, its error coordinates, the change and that step's noise, ~600 B, so ~60 kB per seed
+  at 100 test trajectories, and a chunk of 12 seeds (~0.7 MB) stays inside this machine's 2 MB
+  L2 where one of 40 (~2.4 MB) does not. Measured on the hover DAgger cell (100 test
+  trajectories, one step after compilation, sizes interleaved in one process, best of 6-8,
+  2-core machine): per seed 0.86x at 10 seeds, 0.90x at 15, 1.00 at 20 and 30, 1.04x at 40,
+  1.10x at 80 and 1.25x at 200 seeds. A constant, not derived from the family: the working set
+  per seed is the same for the funnel (same state, same test count), and the finite-MDP cells'
+  per-seed data (MB) is out of cache at any chunk size. The cost of more chunks is a Python call
+  per chunk and iteration (~1 ms against ~100 ms of work) and their files. The memory estimate
+  is made at the capped chunk's size, so its compilation is the one the run reuses.
 - **Same numbers.** Each seed's computation is its own under ``vmap`` (its keys come from its
   seed alone), but XLA's CPU backend picks a reduction's loop from the whole shape, so a sum's
   order, and its last bit, can change with the number of seeds beside it. Every reduction whose
@@ -72,6 +73,7 @@ import numpy as np
 import pyarrow as pa
 
 from loopid.algorithms.loop import MIN_SEEDS
+from loopid.experiments import backend
 from loopid.experiments.artifacts import Stacked
 from loopid.experiments.results import concat, metadata, read_table, with_metadata, write_atomic
 
@@ -126,11 +128,21 @@ def check_memory(gb) -> float | None:
 
 def budget(gb: float | None, processes: int = 1) -> int:
     """Bytes one process's chunk may use: ``gb`` (all processes together) or the default
-    (module docstring), shared equally by ``processes``."""
+    (module docstring), shared equally by ``processes``; on an accelerator the default is
+    :data:`~loopid.experiments.backend.DEVICE_FRACTION` of one device's memory."""
     gb = check_memory(gb)
     if gb is not None:
         return int(gb * GB / processes)
+    device = backend.device_bytes()
+    if device is not None:  # an accelerator: each process owns one device and its memory
+        return int(backend.DEVICE_FRACTION * device)
     return int(max(DEFAULT_FRACTION * available_bytes() - processes * PROCESS_BYTES, 0) / processes)
+
+
+def speed_seeds(seeds: int) -> int:
+    """The most seeds a chunk holds for speed: :data:`SPEED_SEEDS` on a CPU; on an accelerator,
+    where width is nearly free, all ``seeds`` (the memory budget alone splits them)."""
+    return seeds if backend.accelerator() else min(seeds, SPEED_SEEDS)
 
 
 def check_processes(processes: int, what: str = "--workers") -> None:

@@ -6,8 +6,9 @@ workers against the machine's CPUs and memory, that ``out`` can be written, that
 directory already there holds the same configuration), then:
 
 1. splits each unfinished cell's missing seeds into chunks of at most
-   :data:`~loopid.experiments.chunks.SPEED_SEEDS` (families with a memory estimate;
-   :mod:`loopid.experiments.chunks`);
+   :data:`~loopid.experiments.chunks.SPEED_SEEDS` on a CPU (families with a memory estimate;
+   :mod:`loopid.experiments.chunks`; on an accelerator, one process per device and chunks as
+   large as its memory allows: :mod:`loopid.experiments.backend`);
 2. hands the tasks (whole cells and chunks) to an executor
    (:mod:`loopid.experiments.executors`). A task first compiles its programs and reads their
    memory from them (the family's ``memory``); one that needs more than its process's share of
@@ -38,7 +39,7 @@ import pyarrow as pa
 
 import loopid
 from loopid.algorithms.loop import Row
-from loopid.experiments import artifacts, chunks
+from loopid.experiments import artifacts, backend, chunks
 from loopid.experiments.config import seed_list, seeds_value
 from loopid.experiments.executors import (
     Job,
@@ -243,6 +244,8 @@ def run_cells(
     seeds = check_cells(scenarios, methods, seeds)
     check_executor(executor_name, ray_address)
     chunks.check_memory(memory)
+    if executor_name == "local":  # on an accelerator, one process per device
+        workers = backend.fold_workers(check_workers(workers), log)
     options = {"workers": check_workers(workers)} if executor_name == "local" else {}
     if executor_name == "local" and workers > 1:
         chunks.check_processes(workers)
@@ -334,11 +337,11 @@ def _first(final: dict, count: int) -> dict:
 
 def _plan(rd: RunDir, todo, seeds: np.ndarray, family: Family) -> list[Job]:
     """The tasks of the unfinished cells: each cell's missing seeds, in chunks of at most
-    :data:`loopid.experiments.chunks.SPEED_SEEDS` (at least ``MIN_CHUNK``) for families with a
+    :func:`loopid.experiments.chunks.speed_seeds` (at least ``MIN_CHUNK``) for families with a
     memory estimate, else whole; a cell that is one chunk is saved as a cell, with no chunk
     files."""
     least = chunks.MIN_CHUNK if family.memory else 1  # chunked families: one lowering a seed
-    most = chunks.SPEED_SEEDS if family.memory else len(seeds)
+    most = chunks.speed_seeds(len(seeds)) if family.memory else len(seeds)
     jobs = []
     for s, m in todo:
         left = chunks.ChunkFiles(rd.cells, s.name, m).missing(len(seeds))

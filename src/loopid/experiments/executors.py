@@ -1,4 +1,6 @@
-"""Executors: where the cells of a run are computed. The same seeds give the same table on any.
+"""Executors: where the cells of a run are computed. The same seeds give the same table on any,
+on one backend (:mod:`loopid.experiments.backend`: a GPU's table may differ from a CPU's in
+rounding).
 
 - ``local`` (default): on this machine, JAX's persistent compilation cache on
   (:func:`compile_cache`). ``workers = 1``: in this process, one cell after another; cells that
@@ -11,9 +13,10 @@
   and compilation-bound runs (``--quick``) gain nothing.
   (Cells on several threads of one process were tried and dropped: concurrent executions on
   XLA's CPU client deadlock when its thread pool is as small as the machine's two cores.)
-- ``ray`` (extra ``[ray]``): each cell is one Ray task (``num_cpus=1``) calling the same cell
-  function; ``address`` joins an existing cluster, otherwise a local Ray is started with the
-  machine's CPUs and shut down afterwards. Workers use the same compilation cache folder.
+- ``ray`` (extra ``[ray]``): each cell is one Ray task (``num_cpus=1``, and ``num_gpus=1`` on a
+  cluster with GPUs) calling the same cell function; ``address`` joins an existing cluster,
+  otherwise a local Ray is started with the machine's CPUs and shut down afterwards. Workers use
+  the same compilation cache folder.
 
 An executor is a generator: ``executor(jobs, fn, on_job=..., **options)`` yields ``(job,
 result)`` as jobs finish (in any order), ``result`` being ``fn(scenario, method, seeds,
@@ -116,7 +119,12 @@ MAX_DEFAULT_WORKERS = 4
 
 def default_workers() -> int:
     """The local executor's default worker count on the command line: one per CPU, at most
-    :data:`MAX_DEFAULT_WORKERS`."""
+    :data:`MAX_DEFAULT_WORKERS`; on an accelerator one per device
+    (:mod:`loopid.experiments.backend`)."""
+    from loopid.experiments import backend
+
+    if backend.accelerator():
+        return backend.device_count()
     return max(1, min(os.cpu_count() or 1, MAX_DEFAULT_WORKERS))
 
 
@@ -157,9 +165,14 @@ def spread(jobs: Sequence[Job]) -> list[int]:
 _WORKER: dict = {}
 
 
-def _init_worker(cache_dir: str, messages, parent: int) -> None:
-    """Worker process start: float64 and the shared compile cache on; exit with the parent (a
-    killed run must not leave workers computing cells nobody will save)."""
+def _init_worker(cache_dir: str, messages, parent: int, devices=None, platform="cpu") -> None:
+    """Worker process start: on an accelerator its own device (taken from the ``devices``
+    queue); float64 and the shared compile cache on; exit with the parent (a killed run must
+    not leave workers computing cells nobody will save)."""
+    if devices is not None:
+        from loopid.experiments.backend import pin_device
+
+        pin_device(platform, devices.get())
     import loopid  # noqa: F401  (float64 on)
 
     compile_cache(cache_dir)
@@ -220,9 +233,16 @@ def _run_pool(jobs, cell, on_job, workers) -> Iterator[tuple[Job, Any]]:
             except queue.Empty:
                 return
 
+    from loopid.experiments import backend
+
+    devices = None
+    if backend.accelerator():  # one device each
+        devices = ctx.Queue()
+        for index in range(workers):
+            devices.put(index)
     pool = ProcessPoolExecutor(
         workers, mp_context=ctx, initializer=_init_worker,
-        initargs=(cache_dir, messages, os.getpid()),
+        initargs=(cache_dir, messages, os.getpid(), devices, backend.name()),
     )  # fmt: skip
     try:
         futures = {
@@ -274,7 +294,9 @@ def run_ray(
     with ray_session(address, num_cpus) if not ray.is_initialized() else nullcontext():
         import jax
 
-        task = ray.remote(num_cpus=1, max_retries=0)(_ray_cell)
+        # on a cluster with GPUs a task (one chunk of a cell) takes one of them
+        gpus = 1 if ray.cluster_resources().get("GPU", 0) >= 1 else 0
+        task = ray.remote(num_cpus=1, num_gpus=gpus, max_retries=0)(_ray_cell)
         cache_dir = jax.config.jax_compilation_cache_dir or compile_cache()
         pending = {
             task.remote(cell, job.scenario, job.method, job.seeds, cache_dir): job for job in jobs

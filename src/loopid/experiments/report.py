@@ -17,6 +17,7 @@ import numpy as np
 import pyarrow as pa
 
 import loopid
+from loopid.experiments import backend
 from loopid.experiments.findings import Costs, _g
 
 
@@ -104,7 +105,7 @@ def report_text(
     L += ["## Wall time", ""]
     machine = (
         f"{platform.machine()}, {os.cpu_count()} CPUs, JAX {jax.__version__} on "
-        f"{jax.default_backend()}"
+        f"{backend.describe()}"
     )
     if command_s is not None:
         L.append(f"- this command: {command_s:.1f} s ({machine})")

@@ -328,7 +328,7 @@ def study_text(
     prediction: list[str] | None = None,
 ) -> str:
     """The Markdown of ``study.md``."""
-    import jax
+    from loopid.experiments import backend
 
     L = [
         "# loopid reading study",
@@ -347,8 +347,7 @@ def study_text(
     ]
     if command_s is not None:
         line = (
-            f"Wall time of this command: {command_s:.0f} s ({jax.default_backend()}, "
-            f"{_cpus()} CPUs)."
+            f"Wall time of this command: {command_s:.0f} s ({backend.describe()}, {_cpus()} CPUs)."
         )
         if cells_s is not None:
             line += (

@@ -1,0 +1,96 @@
+"""The compute backend a run uses, and what it implies for processes, chunks and memory.
+
+JAX runs a cell's programs on its default backend: the CPU, or an accelerator (a GPU or TPU).
+The two want different executors:
+
+- **CPU.** Several worker processes (one per core, at most
+  :data:`~loopid.experiments.executors.MAX_DEFAULT_WORKERS`) share the cores; a chunk holds at
+  most :data:`~loopid.experiments.chunks.SPEED_SEEDS` seeds (its working set then stays in the
+  core's cache); the memory budget is the host's.
+- **Accelerator.** One process per device: processes sharing one device time-slice it (measured
+  on one H200: a hover cell 37-66 s with four worker processes against 6.6 s alone), so more
+  workers than devices are folded to one per device, with one line saying so. Width is nearly
+  free on a device, so a chunk holds as many seeds as its memory allows (no speed cap), and the
+  budget is the device's own memory (:func:`device_bytes`), not the host's. Each worker process
+  sees only its own device, and no process preallocates most of a device's memory
+  (``XLA_PYTHON_CLIENT_PREALLOCATE=false``, set by the command line before JAX starts).
+
+The same seeds give the same table on one backend whatever the executor, workers or chunks; a
+table computed on an accelerator may differ from a CPU's in the last bits (another compiler and
+other math libraries), and where a rounding difference is amplified (a cost near the cap, a
+diverging trajectory) by more.
+"""
+
+import os
+
+import jax
+
+#: The share of a device's memory a run's chunks may use (the rest: XLA's own workspace and the
+#: compiled programs).
+DEVICE_FRACTION = 0.8
+
+#: The environment variable that restricts a process to some GPUs, per platform.
+VISIBLE_DEVICES = {"gpu": "CUDA_VISIBLE_DEVICES", "cuda": "CUDA_VISIBLE_DEVICES",
+                   "rocm": "HIP_VISIBLE_DEVICES"}  # fmt: skip
+
+
+def name() -> str:
+    """JAX's default backend: ``"cpu"``, ``"gpu"``, ``"tpu"``, ..."""
+    return jax.default_backend()
+
+
+def accelerator() -> bool:
+    """Whether cells run on an accelerator (not the CPU)."""
+    return name() != "cpu"
+
+
+def device_count() -> int:
+    """This process's devices on the default backend."""
+    return jax.local_device_count()
+
+
+def describe() -> str:
+    """The backend in words for reports: ``"cpu"``, or e.g. ``"gpu (1 x NVIDIA H200)"``."""
+    if not accelerator():
+        return "cpu"
+    kinds = sorted({d.device_kind for d in jax.local_devices()})
+    return f"{name()} ({device_count()} x {', '.join(kinds)})"
+
+
+def device_bytes() -> int | None:
+    """The memory of the smallest local device (``bytes_limit`` of its memory statistics), or
+    None on the CPU or where the device does not report it."""
+    if not accelerator():
+        return None
+    limits = []
+    for d in jax.local_devices():
+        stats = d.memory_stats() or {}
+        if "bytes_limit" in stats:
+            limits.append(int(stats["bytes_limit"]))
+    return min(limits) if limits else None
+
+
+def fold_workers(workers: int, log=None) -> int:
+    """``workers`` on a CPU; on an accelerator at most one per device, saying so in one line
+    through ``log`` when it folds."""
+    if not accelerator() or workers <= device_count():
+        return workers
+    devices = device_count()
+    if log is not None:
+        log(
+            f"--workers {workers}: {devices} {name()} device{'s' if devices > 1 else ''}; "
+            f"running {devices} worker process{'es' if devices > 1 else ''}, one per device "
+            "(processes sharing a device time-slice it)"
+        )
+    return devices
+
+
+def pin_device(platform: str, index: int) -> None:
+    """Restrict this (worker) process to device ``index`` of its parent's ``platform`` devices,
+    before JAX starts its backend here, and keep it from preallocating most of the device."""
+    os.environ.setdefault("XLA_PYTHON_CLIENT_PREALLOCATE", "false")
+    variable = VISIBLE_DEVICES.get(platform)
+    if variable is not None:
+        visible = os.environ.get(variable)
+        ids = visible.split(",") if visible else [str(i) for i in range(index + 1)]
+        os.environ[variable] = ids[index]
