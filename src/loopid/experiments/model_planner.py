@@ -155,6 +155,44 @@ def model_class(s, nominal):
     return feature_model(nominal, feature_map(s, n, m), ftrl_least_squares(s.ftrl_lambda))
 
 
+def make_agent(s, nominal, Q, R, horizon: int, *, start, U0, plan_cost=None, alternatives=None,
+               model=None):  # fmt: skip
+    """The agent of the config ``s``: its model class × learner × planner, the one place every
+    family assembles one (:class:`loopid.algorithms.loop.Agent`).
+
+    - ``linear`` + ``lqr`` (the paper's): the linear offset model ``nominal`` learned by FTRL
+      (λ = ``s.ftrl_lambda``) and solved by (time-varying) LQR on ``Q [n, n]``, ``R [m, m]``
+      over ``horizon`` steps (:func:`loopid.algorithms.model_based.linear_agent`).
+    - otherwise: the model class of ``s`` (:func:`model_class`; ``model``: one already made, so
+      that programs compiled for it are shared) planned by iLQR over ``horizon`` steps from the
+      error state ``start [n]``, first from the actions ``U0 [horizon, m]``, on ``plan_cost``
+      (default the quadratic cost of ``Q``, ``R``); with ``planner_kind = "ilqr"`` and a
+      ``planner_horizon``, the plan starts from an MPC episode of that window on the model,
+      which also tries the constant ``alternatives [k, m]``
+      (:func:`loopid.algorithms.planning_agent.ilqr_plan`).
+    """
+    if s.model_kind == "linear" and s.planner_kind == "lqr":
+        from loopid.algorithms.model_based import linear_agent
+        from loopid.learners import ftrl_least_squares
+
+        return linear_agent(nominal, ftrl_least_squares(s.ftrl_lambda), Q, R, horizon)
+    from loopid.algorithms.planning_agent import ilqr_plan, planning_agent
+    from loopid.control import quadratic_cost
+
+    if s.planner_horizon is not None and s.planner_horizon > horizon:
+        raise ValueError(
+            f"planner_horizon {s.planner_horizon} is longer than the task's horizon {horizon}"
+        )
+    mc = model_class(s, nominal) if model is None else model
+    seed_horizon = s.planner_horizon if s.planner_kind == "ilqr" else None
+    plan = ilqr_plan(
+        mc, quadratic_cost(Q, R) if plan_cost is None else plan_cost, start, U0,
+        iterations=s.planner_iterations, seed_horizon=seed_horizon,
+        seed_alternatives=None if seed_horizon is None else alternatives,
+    )  # fmt: skip
+    return planning_agent(mc, plan)
+
+
 def feature_map(s, n: int, m: int):
     """The feature map of the config ``s`` (``linear``: the degree-1 map) for sizes n, m: what
     a saved ``W_features`` multiplies (:class:`loopid.experiments.learned.FeatureModel`)."""

@@ -45,7 +45,6 @@ import pyarrow as pa
 from loopid.algorithms.host_loop import (
     EVALUATE,
     Exploration,
-    gym_agent,
     make_host_cell,
     nominal_model,
     run_learning_host,
@@ -367,7 +366,8 @@ def _learner(s: GymScenario, shape: Shape) -> Learner:
     model = _checked("model", nominal_model, shape, thaw(s.A), thaw(s.B),
                      time_varying=s.time_varying)  # fmt: skip
     if s.model_kind == "linear" and s.planner_kind == "lqr":
-        agent = gym_agent(shape, cost, model, lam=s.ftrl_lambda)
+        Q, R = cost.augmented()  # sized to the system by _cost
+        agent = model_planner.make_agent(s, model, Q, R, shape.horizon, start=None, U0=None)
         return Learner(agent, make_host_cell(agent, samples=s.samples))
     return _planning_learner(s, shape, cost, model)
 
@@ -389,7 +389,6 @@ def _start(s: GymScenario, shape: Shape) -> np.ndarray:
 def _planning_learner(s: GymScenario, shape: Shape, cost, nominal) -> Learner:
     """A model class of :mod:`loopid.algorithms.planning_agent` planned by iLQR (or MPC) on the
     cost's Q, R, with the action box kept by :func:`loopid.control.action_penalty`."""
-    from loopid.algorithms.planning_agent import ilqr_plan, planning_agent
     from loopid.control import MPCController, Penalized, quadratic_cost
 
     Q, R = cost.augmented()
@@ -408,17 +407,11 @@ def _planning_learner(s: GymScenario, shape: Shape, cost, nominal) -> Learner:
                 f"got {thaw(s.planner_alternatives)!r}"
             )
     mc = _checked("model", model_planner.model_class, s, nominal)
-    if s.planner_horizon is not None and s.planner_horizon > shape.horizon:
-        raise ValueError(
-            f"planner_horizon {s.planner_horizon} is longer than the task's horizon {shape.horizon}"
-        )
     U0 = np.full((shape.horizon, shape.m), 0.1 * (shape.u_limit or 1.0))
-    seed_horizon = s.planner_horizon if s.planner_kind == "ilqr" else None
-    plan = ilqr_plan(
-        mc, plan_cost, _start(s, shape), U0, iterations=s.planner_iterations,
-        seed_horizon=seed_horizon, seed_alternatives=None if seed_horizon is None else alternatives,
+    agent = model_planner.make_agent(
+        s, nominal, Q, R, shape.horizon, start=_start(s, shape), U0=U0, plan_cost=plan_cost,
+        alternatives=alternatives, model=mc,
     )  # fmt: skip
-    agent = planning_agent(mc, plan)
     cell = make_host_cell(agent, samples=s.samples)
     if s.planner_kind != "mpc":
         return Learner(agent, cell)

@@ -40,7 +40,6 @@ from loopid.algorithms.loop import (
     run_learning,
     seed_keys,
 )
-from loopid.algorithms.model_based import linear_agent
 from loopid.algorithms.plant import Plant, make_plant
 from loopid.algorithms.policy_gradient import run_policy_gradient
 from loopid.experiments import model_planner
@@ -50,7 +49,6 @@ from loopid.experiments.findings import findings_section
 from loopid.experiments.report import final_cost_sections
 from loopid.experiments.scenarios import FIELDS, SCENARIOS, Scenario, readings_line, scenario
 from loopid.exploration import NU_KINDS, make_nu
-from loopid.learners import ftrl_least_squares
 from loopid.models.linear_offset import LinearOffsetModel, hover_nominal
 from loopid.systems import helicopter
 from loopid.systems.funnel_nominal import funnel_nominal
@@ -108,38 +106,25 @@ def setup(s: Scenario) -> Setup:
 
 @lru_cache(maxsize=8)
 def _agent(key: Scenario) -> Agent:
+    """The scenario's agent (:func:`loopid.experiments.model_planner.make_agent`): the paper's
+    by default; a ``model_*`` model class (one global model for every step; the funnel's
+    time-varying nominal is kept) is planned by iLQR on the task's quadratic cost from the task's
+    start, over the task horizon (under ``mpc`` too: its gains are what the cell saves; MPC
+    flies, :func:`_mpc`)."""
     st = _setup(key)
-    task = st.plant.task
-    if key.model_kind == "linear" and key.planner_kind == "lqr":
-        return linear_agent(st.nominal, ftrl_least_squares(key.ftrl_lambda), task.Q, task.R,
-                            st.plant.horizon)  # fmt: skip
-    return _planning_agent(key, st)
-
-
-def _planning_agent(key: Scenario, st: Setup) -> Agent:
-    """The ``model_*`` model class (:func:`loopid.experiments.model_planner.model_class`: one
-    global model for every step; the funnel's time-varying nominal is kept) planned by iLQR on
-    the task's quadratic cost from the task's start, over the task horizon (under ``mpc`` too:
-    its gains are what the cell saves; MPC flies, :func:`_controller`)."""
-    from loopid.algorithms.planning_agent import ilqr_plan, planning_agent
-    from loopid.control import quadratic_cost
-
     task, horizon = st.plant.task, st.plant.horizon
-    if key.planner_horizon is not None and key.planner_horizon > horizon:
-        raise ValueError(
-            f"planner_horizon {key.planner_horizon} is longer than the task's horizon {horizon}"
-        )
-    model = _model(key)
     target = jnp.asarray(task.target)
-    x0 = helicopter.to_error(jnp.asarray(task.x0), target[0])
-    U0 = np.zeros((horizon, helicopter.N_ACTION))
-    seed_horizon = key.planner_horizon if key.planner_kind == "ilqr" else None
-    plan = ilqr_plan(
-        model, quadratic_cost(task.Q, task.R), x0, U0, iterations=key.planner_iterations,
-        seed_horizon=seed_horizon,
-        seed_alternatives=None if seed_horizon is None else _alternatives(key),
+    return model_planner.make_agent(
+        key, st.nominal, task.Q, task.R, horizon,
+        start=helicopter.to_error(jnp.asarray(task.x0), target[0]),
+        U0=np.zeros((horizon, helicopter.N_ACTION)), alternatives=_alternatives(key),
+        model=None if is_default_agent(key) else _model(key),
     )  # fmt: skip
-    return planning_agent(model, plan)
+
+
+def is_default_agent(key: Scenario) -> bool:
+    """Whether the scenario runs the paper's agent (linear offset model, FTRL, LQR)."""
+    return key.model_kind == "linear" and key.planner_kind == "lqr"
 
 
 def _alternatives(key: Scenario):
