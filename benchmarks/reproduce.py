@@ -19,6 +19,7 @@ device); compare a GPU's figures with a GPU's only.
 
 import argparse
 import os
+import shutil
 import statistics
 import subprocess
 import sys
@@ -94,6 +95,8 @@ def main() -> None:
     parser.add_argument("--full", action="store_true", help="the whole protocol, not --quick")
     parser.add_argument("--runs", type=int, default=None, help="runs per side (3 quick, 1 full)")
     parser.add_argument("--warm", action="store_true", help="keep each side's compile cache")
+    parser.add_argument("--keep", type=Path, default=None,
+                        help="copy this tree's first run directory here")  # fmt: skip
     opts = parser.parse_args()
     runs = opts.runs or (1 if opts.full else 3)
     args = [] if opts.full else ["--quick"]
@@ -108,6 +111,8 @@ def main() -> None:
                     out = tmp / f"out-{side}-{i}"
                     times[side].append(run_once(tree, args, out, cache))
                     print(f"{side} run {i + 1}: {times[side][-1]:.1f} s", flush=True)
+            if opts.keep is not None:
+                shutil.copytree(tmp / "out-this tree-0", opts.keep, dirs_exist_ok=True)
             changed = []
             for table in ("results.parquet", "mdp/results.parquet"):  # Figure 2, the MDP panel
                 a, b = tmp / "out-reference-0" / table, tmp / "out-this tree-0" / table
