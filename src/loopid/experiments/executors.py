@@ -9,8 +9,9 @@ rounding).
   each running one cell at a time, in the order of :func:`spread`; a worker that meets a program
   another one already compiled loads it from the shared persistent cache. One XLA CPU process
   keeps about 1.5 of 2 cores busy, and two share the cores' caches: on 2 cores two workers
-  finish a protocol run about 1.1-1.2x sooner (a funnel cell runs at 2/3 speed beside another),
-  and compilation-bound runs (``--quick``) gain nothing.
+  finish about as soon as one (the hover-delay panel: 98 s with two, 93 s with one), and
+  compilation-bound runs (``--quick``) gain nothing; more cores gain more. On an accelerator,
+  one worker per device (:mod:`loopid.experiments.backend`).
   (Cells on several threads of one process were tried and dropped: concurrent executions on
   XLA's CPU client deadlock when its thread pool is as small as the machine's two cores.)
 - ``ray`` (extra ``[ray]``): each cell is one Ray task (``num_cpus=1``, and ``num_gpus=1`` on a
