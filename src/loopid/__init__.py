@@ -4,12 +4,19 @@ An implementation of Ross & Bagnell (ICML 2012), "Agnostic System Identification
 Model-Based Reinforcement Learning": fit a model of a real system, synthesise a controller on
 it, run the controller on the system, add what it saw to the data, repeat.
 
-Importing loopid turns on JAX float64 (every hot path is float64) and registers the helicopter
-tasks as Gymnasium environments (``loopid/HelicopterHover-v0``, ``loopid/HelicopterHoverDelay-v0``,
-``loopid/HelicopterFunnel-v0``).
+Importing loopid turns on JAX float64 (every hot path is float64), keeps JAX from
+preallocating most of a GPU's memory (``XLA_PYTHON_CLIENT_PREALLOCATE=false`` unless set), and
+registers the helicopter tasks as Gymnasium environments (``loopid/HelicopterHover-v0``,
+``loopid/HelicopterHoverDelay-v0``, ``loopid/HelicopterFunnel-v0``).
 """
 
+import os
 from importlib.metadata import PackageNotFoundError, version
+
+# On a GPU no process takes most of the device's memory up front: loopid's worker processes
+# (one per device) and the process that starts them would otherwise each claim 75 % of it.
+# Effective when set before JAX starts a backend; a value the user set is kept.
+os.environ.setdefault("XLA_PYTHON_CLIENT_PREALLOCATE", "false")
 
 import jax
 

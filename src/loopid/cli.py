@@ -481,9 +481,6 @@ def main(argv: list[str] | None = None) -> None:
     """Console-script entry point: user errors exit 2 with one line, never a traceback."""
     from loopid.experiments.executors import compile_cache
 
-    # on a GPU no process takes most of the device's memory up front (worker processes, one per
-    # device, and this one would otherwise each claim 75 % of it); before JAX starts a backend
-    os.environ.setdefault("XLA_PYTHON_CLIENT_PREALLOCATE", "false")
     compile_cache()
     try:
         code = app(args=argv, standalone_mode=False)

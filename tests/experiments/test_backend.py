@@ -44,13 +44,27 @@ def test_an_accelerator_has_no_speed_cap_and_budgets_the_devices_memory(one_gpu)
 
 def test_a_worker_is_pinned_to_its_own_device(monkeypatch):
     monkeypatch.delenv("XLA_PYTHON_CLIENT_PREALLOCATE", raising=False)
+    monkeypatch.delenv("HIP_VISIBLE_DEVICES", raising=False)
     monkeypatch.setenv("CUDA_VISIBLE_DEVICES", "3,5,6")
     backend.pin_device("gpu", 1)
-    assert os.environ["CUDA_VISIBLE_DEVICES"] == "5"
+    assert os.environ["CUDA_VISIBLE_DEVICES"] == os.environ["HIP_VISIBLE_DEVICES"] == "5"
     assert os.environ["XLA_PYTHON_CLIENT_PREALLOCATE"] == "false"
     monkeypatch.delenv("CUDA_VISIBLE_DEVICES")
     backend.pin_device("gpu", 2)
     assert os.environ["CUDA_VISIBLE_DEVICES"] == "2"
+
+
+def test_a_platform_that_cannot_pin_a_device_runs_one_worker(monkeypatch):
+    """Four TPU chips: each worker process would open every chip, so one runs."""
+    monkeypatch.setattr(backend, "accelerator", lambda: True)
+    monkeypatch.setattr(backend, "name", lambda: "tpu")
+    monkeypatch.setattr(backend, "device_count", lambda: 4)
+    lines = []
+    assert backend.worker_devices() == 1 and backend.fold_workers(4, lines.append) == 1
+    assert lines == [
+        "--workers 4: 4 tpu devices; running 1 worker process (processes sharing a device "
+        "time-slice it)"
+    ]
 
 
 def test_a_run_on_an_accelerator_runs_one_process_per_device(one_gpu, tmp_path, monkeypatch):

@@ -13,7 +13,7 @@ The two want different executors:
   free on a device, so a chunk holds as many seeds as its memory allows (no speed cap), and the
   budget is the device's own memory (:func:`device_bytes`), not the host's. Each worker process
   sees only its own device, and no process preallocates most of a device's memory
-  (``XLA_PYTHON_CLIENT_PREALLOCATE=false``, set by the command line before JAX starts).
+  (``XLA_PYTHON_CLIENT_PREALLOCATE=false``, set by ``import loopid`` before JAX starts).
 
 The same seeds give the same table on one backend whatever the executor, workers or chunks; a
 table computed on an accelerator may differ from a CPU's in the last bits (another compiler and
@@ -29,9 +29,10 @@ import jax
 #: compiled programs).
 DEVICE_FRACTION = 0.8
 
-#: The environment variable that restricts a process to some GPUs, per platform.
-VISIBLE_DEVICES = {"gpu": "CUDA_VISIBLE_DEVICES", "cuda": "CUDA_VISIBLE_DEVICES",
-                   "rocm": "HIP_VISIBLE_DEVICES"}  # fmt: skip
+#: The environment variables that restrict a process to some devices, per platform (JAX names
+#: both NVIDIA's and AMD's GPUs ``gpu``; the first variable holds the parent's list). A platform
+#: without one (a TPU) runs one worker process: each would open every chip.
+VISIBLE_DEVICES = {"gpu": ("CUDA_VISIBLE_DEVICES", "HIP_VISIBLE_DEVICES")}
 
 
 def name() -> str:
@@ -70,17 +71,23 @@ def device_bytes() -> int | None:
     return min(limits) if limits else None
 
 
+def worker_devices() -> int:
+    """How many worker processes an accelerator can take: one per device where a process can be
+    pinned to one (:data:`VISIBLE_DEVICES`), else one."""
+    return device_count() if name() in VISIBLE_DEVICES else 1
+
+
 def fold_workers(workers: int, log=None) -> int:
-    """``workers`` on a CPU; on an accelerator at most one per device, saying so in one line
-    through ``log`` when it folds."""
-    if not accelerator() or workers <= device_count():
+    """``workers`` on a CPU; on an accelerator at most one per device
+    (:func:`worker_devices`), saying so in one line through ``log`` when it folds."""
+    if not accelerator() or workers <= worker_devices():
         return workers
-    devices = device_count()
+    devices, count = worker_devices(), device_count()
     if log is not None:
         log(
-            f"--workers {workers}: {devices} {name()} device{'s' if devices > 1 else ''}; "
-            f"running {devices} worker process{'es' if devices > 1 else ''}, one per device "
-            "(processes sharing a device time-slice it)"
+            f"--workers {workers}: {count} {name()} device{'s' if count > 1 else ''}; running "
+            f"{devices} worker process{'es' if devices > 1 else ''} (processes sharing a device "
+            "time-slice it)"
         )
     return devices
 
@@ -89,8 +96,9 @@ def pin_device(platform: str, index: int) -> None:
     """Restrict this (worker) process to device ``index`` of its parent's ``platform`` devices,
     before JAX starts its backend here, and keep it from preallocating most of the device."""
     os.environ.setdefault("XLA_PYTHON_CLIENT_PREALLOCATE", "false")
-    variable = VISIBLE_DEVICES.get(platform)
-    if variable is not None:
-        visible = os.environ.get(variable)
+    variables = VISIBLE_DEVICES.get(platform)
+    if variables is not None:
+        visible = os.environ.get(variables[0])
         ids = visible.split(",") if visible else [str(i) for i in range(index + 1)]
-        os.environ[variable] = ids[index]
+        for variable in variables:
+            os.environ[variable] = ids[index]

@@ -125,7 +125,7 @@ def default_workers() -> int:
     from loopid.experiments import backend
 
     if backend.accelerator():
-        return backend.device_count()
+        return backend.worker_devices()
     return max(1, min(os.cpu_count() or 1, MAX_DEFAULT_WORKERS))
 
 
@@ -189,7 +189,9 @@ def _init_worker(cache_dir: str, messages, parent: int, devices=None, platform="
 
 def _pool_cell(cell: CellFunction, index: int, s, method: str, seeds):
     """One cell in a worker; progress goes back to the parent as ``(index, n, row)``, with
-    ``n = 0`` (no row) when the cell starts."""
+    ``n = 0`` (no row) when the cell starts and ``n = -1`` (no row) when it has returned, so
+    the parent waits for nothing more of it (a task may return before its last iteration: a
+    memory check that sends it back, :class:`loopid.experiments.execute.Oversized`)."""
     import jax
     import numpy as np
 
@@ -201,7 +203,9 @@ def _pool_cell(cell: CellFunction, index: int, s, method: str, seeds):
         messages.put((index, n, jax.tree_util.tree_map(np.asarray, row)))
 
     messages.put((index, 0, None))  # started: the parent shows its bar from now on
-    return cell(s, method, seeds, progress=progress)
+    result = cell(s, method, seeds, progress=progress)
+    messages.put((index, -1, None))  # returned: after every progress message of this cell
+    return result
 
 
 def _run_pool(jobs, cell, on_job, workers) -> Iterator[tuple[Job, Any]]:
@@ -220,7 +224,7 @@ def _run_pool(jobs, cell, on_job, workers) -> Iterator[tuple[Job, Any]]:
         index, n, row = message
         if index not in callbacks:
             callbacks[index] = on_job(jobs[index])
-        seen[index] = n
+        seen[index] = jobs[index].scenario.iterations if n < 0 else n
         if n > 0 and callbacks[index] is not None:
             callbacks[index](n, row)
 

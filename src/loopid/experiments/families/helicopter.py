@@ -117,7 +117,8 @@ def _agent(key: Scenario) -> Agent:
     return model_planner.make_agent(
         key, st.nominal, task.Q, task.R, horizon,
         start=helicopter.to_error(jnp.asarray(task.x0), target[0]),
-        U0=np.zeros((horizon, helicopter.N_ACTION)), alternatives=_alternatives(key),
+        U0=np.zeros((horizon, helicopter.N_ACTION)),
+        alternatives=None if is_default_agent(key) else _alternatives(key),
         model=None if is_default_agent(key) else _model(key),
     )  # fmt: skip
 
@@ -201,7 +202,7 @@ def _cell(key: Scenario):
     return nus, cell
 
 
-@lru_cache(maxsize=4)
+@lru_cache(maxsize=2)
 def _noise(key: Scenario, seeds: tuple[int, ...]):
     """The test noise of ``seeds`` (:class:`loopid.algorithms.loop.EvalNoise`), computed once per
     scenario and seed chunk and shared by every method a process runs on them (a pure function
