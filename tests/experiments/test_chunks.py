@@ -231,7 +231,7 @@ def test_cli_refusals_are_one_line_with_nothing_left_behind(tmp_path, cache):
 
     out = tmp_path / "run"
     tiny = cli("run", "hover", "--seeds", "40", "--iterations", "2", "--methods", "expert",
-               "--memory", "0.000001", "--out", out, cache=cache)  # fmt: skip
+               "--memory", "0.0001", "--out", out, cache=cache)  # fmt: skip
     for result, pattern in [
         (tiny, r"^loopid: error: hover / expert: a chunk of 3 seeds needs about .* memory budget"),
         (cli("run", "hover", "--out", "/proc/x", cache=cache), r"--out '/proc/x' cannot be"),

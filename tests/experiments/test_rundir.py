@@ -91,3 +91,49 @@ def test_different_configuration_refused(finished, tmp_path, counted, change):
     # the same configuration is accepted (and skips everything)
     execute.run_cells(out, SCENARIOS, METHODS)
     assert counted == []
+
+
+def test_rows_that_cannot_fit_the_budget_are_refused_at_once(tmp_path, capsys):
+    """``--iterations 1000000000``: one line naming the iterations, exit 2, nothing written
+    (it used to run silently until killed)."""
+    from loopid.cli import main
+
+    out = tmp_path / "huge"
+    with pytest.raises(SystemExit) as e:
+        main(["run", "hover", "--iterations", "1000000000", "--seeds", "2", "--methods", "expert",
+              "--workers", "1", "--out", str(out)])  # fmt: skip
+    assert e.value.code == 2
+    lines = capsys.readouterr().err.strip().splitlines()
+    assert len(lines) == 1 and "1000000000 iterations" in lines[0], lines
+    assert "lower --iterations" in lines[0]
+    assert not out.exists()
+
+
+def test_a_full_disk_leaves_nothing_behind_when_nothing_finished(tmp_path, monkeypatch):
+    """The disk fills while the first chunk's arrays are written: the error is raised, and
+    neither the temporary file nor ``config.toml`` nor the folders stay (a run that finished
+    nothing leaves nothing behind)."""
+    import errno
+
+    def full_disk(f, **arrays):
+        f.write(b"half an array")
+        raise OSError(errno.ENOSPC, "No space left on device")
+
+    monkeypatch.setattr(np, "savez", full_disk)
+    out = tmp_path / "new" / "run"
+    s = scenario("hover", iterations=2, seeds=20, test_trajectories=4)
+    with pytest.raises(OSError, match="No space left"):
+        execute.run_cells(out, [s], ["expert"], workers=1)
+    assert list(tmp_path.iterdir()) == []  # "new" was created by the run: it went too
+
+
+def test_a_failed_write_removes_its_temporary_file(tmp_path):
+    from loopid.experiments.results import replace_atomically
+
+    def fails(tmp):
+        tmp.write_bytes(b"part")
+        raise OSError(28, "No space left on device")
+
+    with pytest.raises(OSError):
+        replace_atomically(tmp_path / "a.parquet", fails)
+    assert list(tmp_path.iterdir()) == []

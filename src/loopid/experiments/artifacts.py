@@ -26,13 +26,14 @@ is missing or unreadable raises one line naming it (:func:`read`).
 """
 
 import json
-import os
 import zipfile
 from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import NamedTuple
 
 import numpy as np
+
+from loopid.experiments.results import replace_atomically
 
 #: The artifact format's version, in every ``.json``.
 FORMAT = 1
@@ -86,12 +87,6 @@ def paths(cells: Path, scenario: str, method: str) -> tuple[Path, Path]:
     return stem.with_suffix(".npz"), stem.with_suffix(".json")
 
 
-def _replace(write, path: Path) -> None:
-    tmp = path.with_name(f".{path.name}.tmp-{os.getpid()}")
-    write(tmp)
-    os.replace(tmp, path)
-
-
 def write(
     cells: Path,
     scenario: str,
@@ -113,7 +108,7 @@ def write(
     arrays_and_common = {**arrays, **common}
     npz, meta = paths(cells, scenario, method)
 
-    _replace(lambda tmp: save_npz(tmp, {"seeds": seeds, **arrays_and_common}), npz)
+    replace_atomically(npz, lambda tmp: save_npz(tmp, {"seeds": seeds, **arrays_and_common}))
     info = {
         "format": FORMAT,
         "family": family,
@@ -125,7 +120,7 @@ def write(
         },
         "config": config or {},
     }
-    _replace(lambda tmp: tmp.write_text(json.dumps(info, indent=1) + "\n"), meta)
+    replace_atomically(meta, lambda tmp: tmp.write_text(json.dumps(info, indent=1) + "\n"))
 
 
 def read(cells: Path, scenario: str, method: str) -> tuple[dict, dict[str, np.ndarray]]:

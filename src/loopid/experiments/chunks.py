@@ -75,7 +75,14 @@ import pyarrow as pa
 from loopid.algorithms.loop import MIN_SEEDS
 from loopid.experiments import backend
 from loopid.experiments.artifacts import Stacked
-from loopid.experiments.results import concat, metadata, read_table, with_metadata, write_atomic
+from loopid.experiments.results import (
+    concat,
+    metadata,
+    read_table,
+    replace_atomically,
+    with_metadata,
+    write_atomic,
+)
 
 #: The default budget: this fraction of the machine's available memory (the rest is headroom for
 #: the estimate's error, compilation, Python and other programs).
@@ -160,7 +167,8 @@ def check_processes(processes: int, what: str = "--workers") -> None:
         )
 
 
-def _size(nbytes: float) -> str:
+def size_text(nbytes: float) -> str:
+    """``nbytes`` in words, e.g. ``7.05 MB``."""
     for unit, scale in (("TB", 1e12), ("GB", 1e9), ("MB", 1e6), ("kB", 1e3)):
         if nbytes >= scale:
             return f"{nbytes / scale:.3g} {unit}"
@@ -177,9 +185,9 @@ def chunk_size(estimate: int, seeds: int, limit: int, where: str) -> int:
     if c < MIN_CHUNK:
         raise ValueError(
             f"{where}: a chunk of {MIN_CHUNK} seeds needs about "
-            f"{_size(MIN_CHUNK * estimate / seeds)} (estimated for {seeds} seeds: "
-            f"{_size(estimate)}), more than the memory budget of {_size(limit)} per process; "
-            "raise --memory or use fewer --workers"
+            f"{size_text(MIN_CHUNK * estimate / seeds)} (estimated for {seeds} seeds: "
+            f"{size_text(estimate)}), more than the memory budget of {size_text(limit)} per "
+            "process; raise --memory or use fewer --workers"
         )
     return c
 
@@ -252,10 +260,13 @@ class ChunkFiles:
         """One finished chunk: its arrays, then its rows (so a chunk with rows has its arrays)."""
         self.path.mkdir(parents=True, exist_ok=True)
         stem = self._stem(chunk.start, chunk.stop)
-        tmp = stem.with_name(f".{stem.name}.npz.tmp-{os.getpid()}")
-        with open(tmp, "wb") as f:
-            np.savez(f, **{k: np.asarray(v) for k, v in final.items()})
-        os.replace(tmp, stem.with_suffix(".npz"))
+        arrays = {k: np.asarray(v) for k, v in final.items()}
+
+        def save_arrays(tmp: Path) -> None:
+            with open(tmp, "wb") as f:
+                np.savez(f, **arrays)
+
+        replace_atomically(stem.with_suffix(".npz"), save_arrays)
         write_atomic(table, stem.with_suffix(".parquet"))
 
     def merged(self) -> tuple[pa.Table, dict[str, Stacked]]:

@@ -26,6 +26,7 @@ finishes nothing leaves nothing behind. :func:`write_outputs` draws ``figure.png
 """
 
 import os
+import shutil
 import tempfile
 import time
 import tomllib
@@ -174,6 +175,28 @@ def run_chunk(
         raise
 
 
+#: What a task holds in host memory per iteration (the iteration's row objects, about 1 kB) and
+#: per row of the table (one seed at one iteration, 14 float64/int columns and their share of
+#: the objects, about 150 B): :func:`check_rows`.
+ITERATION_BYTES, ROW_BYTES = 1000, 150
+
+
+def check_rows(scenarios: Sequence[Scenario], seeds: np.ndarray, limit: int) -> None:
+    """Refuse, in one line, a scenario whose rows alone cannot fit one process's memory budget
+    (``limit`` bytes): a task keeps every iteration's rows of its seeds until it ends, about
+    ``iterations · (ITERATION_BYTES + ROW_BYTES · seeds)`` bytes, whatever the chunking of its
+    seeds (so ``--iterations 1000000000`` is refused at once instead of running for hours)."""
+    chunk = chunks.speed_seeds(len(seeds))
+    for s in scenarios:
+        need = s.iterations * (ITERATION_BYTES + ROW_BYTES * min(chunk, len(seeds)))
+        if need > limit:
+            raise ValueError(
+                f"{s.name}: {s.iterations} iterations of {min(chunk, len(seeds))} seeds a task "
+                f"keep about {chunks.size_text(need)} of rows, more than the memory budget of "
+                f"{chunks.size_text(limit)} per process; lower --iterations"
+            )
+
+
 def check_writable(out) -> None:
     """``ValueError`` in one line unless a run directory can be created and written at ``out``
     (tried with a temporary file in its nearest existing folder; nothing is left behind)."""
@@ -281,21 +304,30 @@ def run_cells(
                 todo.append((s, m))
     processes = options.get("workers", 1) if executor_name == "local" else (os.cpu_count() or 1)
     limit = chunks.budget(memory, processes)  # each process computing at once gets its share
+    check_rows(scenarios, seeds, limit)
     jobs = _plan(rd, todo, seeds, family)
     cell_progress = _progress(rd, todo, seeds, on_cell)
     # first round: each task measures itself; those over budget come back as smaller chunks,
     # sized from that measurement (chunks.chunk_size), and run in a second round as they are
     rounds = [(jobs, partial(run_chunk, limit=limit))]
-    while rounds:
-        jobs, task = rounds.pop()
-        retry = []
-        for job, done in executor(executor_name)(jobs, task, on_job=cell_progress, **options):
-            if isinstance(done, Oversized):
-                retry += _resplit(job, done.nbytes, seeds, limit)
-            else:
-                _save(rd, config, order, family, seeds, job, done, log)
-        if retry:
-            rounds.append((retry, run_chunk))
+    created = _first_missing(rd.path)
+    try:
+        while rounds:
+            jobs, task = rounds.pop()
+            retry = []
+            for job, done in executor(executor_name)(jobs, task, on_job=cell_progress, **options):
+                if isinstance(done, Oversized):
+                    retry += _resplit(job, done.nbytes, seeds, limit)
+                else:
+                    _save(rd, config, order, family, seeds, job, done, log)
+            if retry:
+                rounds.append((retry, run_chunk))
+    except BaseException:
+        # a run that finished nothing leaves nothing behind (a full disk, an interrupt): the
+        # folders this call created go, unless a cell or chunk was saved (it resumes from it)
+        if created is not None and not any(rd.cells.rglob("*.parquet")):
+            shutil.rmtree(created, ignore_errors=True)
+        raise
     if not rd.exists():
         return rd.write_results(order, save=False)
     return rd.write_results(order)
@@ -336,6 +368,17 @@ def _save(rd: RunDir, config, order, family: Family, seeds, job, done: CellResul
             f"{s.name} / {method}: {float(meta['wall_s']):.1f} s{parts}, "
             f"final median cost {final:.4g}"
         )
+
+
+def _first_missing(path: Path) -> Path | None:
+    """The outermost folder of ``path`` (itself included) that does not exist yet: what a run
+    into ``path`` creates; None when ``path`` exists."""
+    path = Path(path).absolute()
+    if path.exists():
+        return None
+    while not path.parent.exists():
+        path = path.parent
+    return path
 
 
 def _first(final: dict, count: int) -> dict:

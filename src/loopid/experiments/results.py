@@ -65,20 +65,28 @@ def trace_table(scenario: str, method: str, trace: Trace) -> pa.Table:
     return pa.table(data, schema=schema)
 
 
-def write_atomic(table: pa.Table, path: Path) -> None:
-    """Write ``table`` to ``path`` through a temporary file in the same folder and a rename."""
+def replace_atomically(path, write) -> None:
+    """``write(tmp)`` to a temporary file beside ``path``, then rename it to ``path``: readers see
+    the old file or the whole new one, never a part. When writing fails (a full disk, an
+    interrupt) the temporary file is removed and the error raised: nothing is left behind."""
     path = Path(path)
     tmp = path.with_name(f".{path.name}.tmp-{os.getpid()}")
-    pq.write_table(table, tmp)
-    os.replace(tmp, path)
+    try:
+        write(tmp)
+        os.replace(tmp, path)
+    except BaseException:
+        tmp.unlink(missing_ok=True)
+        raise
+
+
+def write_atomic(table: pa.Table, path: Path) -> None:
+    """Write ``table`` to ``path`` atomically (:func:`replace_atomically`)."""
+    replace_atomically(path, lambda tmp: pq.write_table(table, tmp))
 
 
 def write_atomic_bytes(data: bytes, path: Path) -> None:
-    """Write ``data`` to ``path`` through a temporary file in the same folder and a rename."""
-    path = Path(path)
-    tmp = path.with_name(f".{path.name}.tmp-{os.getpid()}")
-    tmp.write_bytes(data)
-    os.replace(tmp, path)
+    """Write ``data`` to ``path`` atomically (:func:`replace_atomically`)."""
+    replace_atomically(path, lambda tmp: tmp.write_bytes(data))
 
 
 def read_table(path: Path) -> pa.Table:

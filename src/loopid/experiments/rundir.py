@@ -24,7 +24,13 @@ import tomli_w
 
 from loopid.experiments.config import seeds_from_value, seeds_value
 from loopid.experiments.readings import continue_hint, readings_of
-from loopid.experiments.results import concat, metadata, read_table, write_atomic
+from loopid.experiments.results import (
+    concat,
+    metadata,
+    read_table,
+    replace_atomically,
+    write_atomic,
+)
 
 
 def to_toml(config: dict) -> str:
@@ -86,9 +92,7 @@ class RunDir:
         if cfg_file.exists():
             return
         self.cells.mkdir(parents=True, exist_ok=True)
-        tmp = cfg_file.with_name(".config.toml.tmp")
-        tmp.write_text(to_toml(config))
-        tmp.replace(cfg_file)
+        replace_atomically(cfg_file, lambda tmp: tmp.write_text(to_toml(config)))
 
     def cell_file(self, scenario: str, method: str) -> Path:
         return self.cells / f"{scenario}__{method}.parquet"
