@@ -188,10 +188,10 @@ def check_rows(scenarios: Sequence[Scenario], seeds: np.ndarray, limit: int) -> 
     seeds (so ``--iterations 1000000000`` is refused at once instead of running for hours)."""
     chunk = chunks.speed_seeds(len(seeds))
     for s in scenarios:
-        need = s.iterations * (ITERATION_BYTES + ROW_BYTES * min(chunk, len(seeds)))
+        need = s.iterations * (ITERATION_BYTES + ROW_BYTES * chunk)
         if need > limit:
             raise ValueError(
-                f"{s.name}: {s.iterations} iterations of {min(chunk, len(seeds))} seeds a task "
+                f"{s.name}: {s.iterations} iterations of {chunk} seeds a task "
                 f"keep about {chunks.size_text(need)} of rows, more than the memory budget of "
                 f"{chunks.size_text(limit)} per process; lower --iterations"
             )
@@ -276,7 +276,7 @@ def run_cells(
     chunks.check_memory(memory)
     if executor_name == "local":  # on an accelerator, one process per device
         workers = backend.fold_workers(check_workers(workers), log)
-    options = {"workers": check_workers(workers)} if executor_name == "local" else {}
+    options = {"workers": workers} if executor_name == "local" else {}
     if executor_name == "local" and workers > 1:
         chunks.check_processes(workers)
     check_writable(out)
@@ -307,21 +307,24 @@ def run_cells(
     check_rows(scenarios, seeds, limit)
     jobs = _plan(rd, todo, seeds, family)
     cell_progress = _progress(rd, todo, seeds, on_cell)
-    # first round: each task measures itself; those over budget come back as smaller chunks,
-    # sized from that measurement (chunks.chunk_size), and run in a second round as they are
-    rounds = [(jobs, partial(run_chunk, limit=limit))]
+
+    def run_round(jobs, task) -> list[Job]:
+        """Run the jobs, saving each finished one; return the Oversized ones' smaller chunks."""
+        retry = []
+        for job, done in executor(executor_name)(jobs, task, on_job=cell_progress, **options):
+            if isinstance(done, Oversized):
+                retry += _resplit(job, done.nbytes, seeds, limit)
+            else:
+                _save(rd, config, order, family, seeds, job, done, log)
+        return retry
+
     created = _first_missing(rd.path)
     try:
-        while rounds:
-            jobs, task = rounds.pop()
-            retry = []
-            for job, done in executor(executor_name)(jobs, task, on_job=cell_progress, **options):
-                if isinstance(done, Oversized):
-                    retry += _resplit(job, done.nbytes, seeds, limit)
-                else:
-                    _save(rd, config, order, family, seeds, job, done, log)
-            if retry:
-                rounds.append((retry, run_chunk))
+        # each task measures itself; those over budget come back as chunks sized from that
+        # measurement (chunks.chunk_size), which run as they are
+        retry = run_round(jobs, partial(run_chunk, limit=limit))
+        if retry:
+            run_round(retry, run_chunk)
     except BaseException:
         # a run that finished nothing leaves nothing behind (a full disk, an interrupt): the
         # folders this call created go, unless a cell or chunk was saved (it resumes from it)
@@ -395,9 +398,12 @@ def _plan(rd: RunDir, todo, seeds: np.ndarray, family: Family) -> list[Job]:
     jobs = []
     for s, m in todo:
         left = chunks.ChunkFiles(rd.cells, s.name, m).missing(len(seeds))
-        parts = chunks.split(seeds, left, min(len(left), most), least)
-        jobs += [Job(s, m, c.seeds, (c.start, c.stop)) for c in parts]
+        jobs += _jobs(s, m, chunks.split(seeds, left, min(len(left), most), least))
     return jobs
+
+
+def _jobs(s: Scenario, method: str, parts: list[chunks.Chunk]) -> list[Job]:
+    return [Job(s, method, c.seeds, (c.start, c.stop)) for c in parts]
 
 
 def _resplit(job: Job, nbytes: int, seeds: np.ndarray, limit: int) -> list[Job]:
@@ -407,8 +413,7 @@ def _resplit(job: Job, nbytes: int, seeds: np.ndarray, limit: int) -> list[Job]:
     ``MIN_CHUNK`` do."""
     where = f"{job.scenario.name} / {job.method}"
     size = chunks.chunk_size(nbytes, len(job.seeds), limit, where)
-    parts = chunks.split(seeds, list(range(*job.part)), size)
-    return [Job(job.scenario, job.method, c.seeds, (c.start, c.stop)) for c in parts]
+    return _jobs(job.scenario, job.method, chunks.split(seeds, list(range(*job.part)), size))
 
 
 def _progress(rd: RunDir, todo, seeds: np.ndarray, on_cell: ProgressFactory | None):

@@ -155,14 +155,21 @@ def model_class(s, nominal):
     return feature_model(nominal, feature_map(s, n, m), ftrl_least_squares(s.ftrl_lambda))
 
 
-def make_agent(s, nominal, Q, R, horizon: int, *, start, U0, plan_cost=None, alternatives=None,
-               model=None):  # fmt: skip
+def is_paper_agent(s) -> bool:
+    """Whether the config ``s`` runs the paper's agent: the linear offset model learned by FTRL,
+    solved by LQR (its other model and planner fields then do not matter)."""
+    return s.model_kind == "linear" and s.planner_kind == "lqr"
+
+
+def make_agent(s, nominal, Q, R, horizon: int, *, start=None, U0=None, plan_cost=None,
+               alternatives=None, model=None):  # fmt: skip
     """The agent of the config ``s``: its model class × learner × planner, the one place every
     family assembles one (:class:`loopid.algorithms.loop.Agent`).
 
     - ``linear`` + ``lqr`` (the paper's): the linear offset model ``nominal`` learned by FTRL
       (λ = ``s.ftrl_lambda``) and solved by (time-varying) LQR on ``Q [n, n]``, ``R [m, m]``
-      over ``horizon`` steps (:func:`loopid.algorithms.model_based.linear_agent`).
+      over ``horizon`` steps (:func:`loopid.algorithms.model_based.linear_agent`); the planning
+      arguments are not used.
     - otherwise: the model class of ``s`` (:func:`model_class`; ``model``: one already made, so
       that programs compiled for it are shared) planned by iLQR over ``horizon`` steps from the
       error state ``start [n]``, first from the actions ``U0 [horizon, m]``, on ``plan_cost``
@@ -171,7 +178,7 @@ def make_agent(s, nominal, Q, R, horizon: int, *, start, U0, plan_cost=None, alt
       which also tries the constant ``alternatives [k, m]``
       (:func:`loopid.algorithms.planning_agent.ilqr_plan`).
     """
-    if s.model_kind == "linear" and s.planner_kind == "lqr":
+    if is_paper_agent(s):
         from loopid.algorithms.model_based import linear_agent
         from loopid.learners import ftrl_least_squares
 

@@ -365,9 +365,9 @@ def _learner(s: GymScenario, shape: Shape) -> Learner:
     cost = _cost(s, shape)
     model = _checked("model", nominal_model, shape, thaw(s.A), thaw(s.B),
                      time_varying=s.time_varying)  # fmt: skip
-    if s.model_kind == "linear" and s.planner_kind == "lqr":
+    if model_planner.is_paper_agent(s):
         Q, R = cost.augmented()  # sized to the system by _cost
-        agent = model_planner.make_agent(s, model, Q, R, shape.horizon, start=None, U0=None)
+        agent = model_planner.make_agent(s, model, Q, R, shape.horizon)
         return Learner(agent, make_host_cell(agent, samples=s.samples))
     return _planning_learner(s, shape, cost, model)
 

@@ -118,14 +118,9 @@ def _agent(key: Scenario) -> Agent:
         key, st.nominal, task.Q, task.R, horizon,
         start=helicopter.to_error(jnp.asarray(task.x0), target[0]),
         U0=np.zeros((horizon, helicopter.N_ACTION)),
-        alternatives=None if is_default_agent(key) else _alternatives(key),
-        model=None if is_default_agent(key) else _model(key),
+        alternatives=None if model_planner.is_paper_agent(key) else _alternatives(key),
+        model=None if model_planner.is_paper_agent(key) else _model(key),
     )  # fmt: skip
-
-
-def is_default_agent(key: Scenario) -> bool:
-    """Whether the scenario runs the paper's agent (linear offset model, FTRL, LQR)."""
-    return key.model_kind == "linear" and key.planner_kind == "lqr"
 
 
 def _alternatives(key: Scenario):
