@@ -178,21 +178,37 @@ def drive(
     return carry, rows
 
 
+def lane_noise(noise: EvalNoise, methods: int) -> EvalNoise:
+    """The test noise of a lane set's lanes: each seed's noise (``[horizon, n_noise, S,
+    n_test]``, :func:`loopid.algorithms.plant.noise_columns`) repeated for each of ``methods``
+    methods along the seed axis, method-major, so that every lane is tested as a seed of a
+    single method is, by the same program, and has its numbers. (Testing the methods' lanes by
+    a ``vmap`` over the methods, reading the noise without a copy, changed last bits.)"""
+    if methods == 1:
+        return noise
+
+    def lanes(w):  # the seed axis is the second last (noise_columns); unused noise is [0]
+        return jnp.concatenate([w] * methods, axis=-2) if w.ndim >= 2 else w
+
+    return jax.tree_util.tree_map(lanes, noise)
+
+
 def _evaluate(
     plant: LoopPlant, carry: _Carry, K, keys, noise: EvalNoise, n, test_policy: str, flown=None
 ):
-    """Test every seed's policy ``K [S, horizon, m, n]`` (``flown``: what the plant flies in its
-    place, a controller's policies of every seed); returns (costs [S, n_test], diverged
-    [S, n_test], new carry)."""
+    """Test every lane's policy ``K [L, horizon, m, n]`` (``flown``: what the plant flies in its
+    place, a controller's policies of every lane) on its noise (:func:`lane_noise`); returns
+    (costs [L, n_test], diverged [L, n_test], new carry). ``keys [L]``: each lane's seed key."""
+    eval_seeds = plant.eval_seeds
     carry = carry._replace(K=K)
     if test_policy == "last":
-        costs, div = plant.eval_seeds(K if flown is None else flown, noise.test)
+        costs, div = eval_seeds(K if flown is None else flown, noise.test)
     elif test_policy == "best":
-        score = trajectory_mean(plant.eval_seeds(K, noise.select)[0])
+        score = trajectory_mean(eval_seeds(K, noise.select)[0])
         better = score < carry.best_cost
         best_K = jnp.where(better[:, None, None, None], K, carry.best_K)
         carry = carry._replace(best_K=best_K, best_cost=jnp.minimum(score, carry.best_cost))
-        costs, div = plant.eval_seeds(best_K, noise.test)
+        costs, div = eval_seeds(best_K, noise.test)
     else:  # the uniform mixture: one of π_1..π_n drawn per test trajectory
         history = carry.history.at[:, n - 1].set(K)
         carry = carry._replace(history=history)
@@ -247,12 +263,12 @@ def make_cell(
     nus = [nu] if callable(nu) else list(nu or [])
 
     def seeds_in_turn(f, *args):
-        """``f`` on each seed in turn (``lax.map``): a solver's ``cond`` then skips the branch it
+        """``f`` on each lane in turn (``lax.map``): a solver's ``cond`` then skips the branch it
         does not take (under ``vmap`` both branches would run)."""
         return jax.lax.map(lambda a: f(*a), args)
 
     def solve_and_test(carry: _Carry, keys, noise, n, p):
-        """Solve every seed's model, then test all the policies in one batch."""
+        """Solve every lane's model, then test all the policies in one batch."""
         if agent.policies is not None:
             K, info = agent.policies(carry.learner)
         else:
@@ -260,8 +276,9 @@ def make_cell(
         extra = {}
         if diagnostics is not None:
             diag, extra = seeds_in_turn(
-                lambda d, s, k: diagnostics.update(d, s, k, p, n), carry.diag, carry.learner, K
-            )
+                lambda d, s, k, q: diagnostics.update(d, s, k, q, n), carry.diag, carry.learner,
+                K, p,
+            )  # fmt: skip
             carry = carry._replace(diag=diag)
         flown = None if controller is None else jax.vmap(controller)(carry.learner, K)
         costs, div, carry = _evaluate(plant, carry, K, keys, noise, n, test_policy, flown)
@@ -284,47 +301,76 @@ def make_cell(
 
     init = jax.jit(jax.vmap(first))
 
-    def draw_nu(which, key, from_pol):
+    def nu_draws(keys, n, which):
+        """ν's draws for every lane, ``[M·S, ...]`` (None without ν: a lane's policy draws
+        stand in). ν depends on the seed and iteration only, so each sampler the lanes use
+        draws once per seed and the methods' lanes share the draws: one method's lanes draw
+        from its sampler alone (``which [1]``, a switch), several methods' lanes from every
+        sampler (each once, whichever methods use it)."""
         if not nus:
-            return from_pol
+            return None
+        methods = which.shape[0]
+        nu_keys = jax.vmap(lambda k: iteration_keys(k, n).nu)(keys)
+        samplers = [jax.vmap(lambda k, f=f: f(k, samples)) for f in nus]
         if len(nus) == 1:
-            return nus[0](key, samples)
-        return jax.lax.switch(which, [lambda k, f=f: f(k, samples) for f in nus], key)
+            one = samplers[0](nu_keys)
+        elif methods == 1:
+            one = jax.lax.switch(which[0], samplers, nu_keys)
+        if len(nus) == 1 or methods == 1:
+            return jax.tree_util.tree_map(lambda a: jnp.concatenate([a] * methods), one)
+        # each sampler under the same switch as a single method's (a lax.map over the kinds
+        # keeps the index traced): drawn outside one, ν_e's and ν_en's last bits changed
+        kinds = jnp.arange(len(nus))
+        every = jax.lax.map(lambda k: jax.lax.switch(k, samplers, nu_keys), kinds)
+        return jax.tree_util.tree_map(lambda a: a[which].reshape(-1, *a.shape[2:]), every)
 
-    def learn(carry: _Carry, key, n, p, which):
+    def learn(carry: _Carry, key, n, p, from_nu):
         keys = iteration_keys(key, n)
         policy = carry.K if controller is None else controller(carry.learner, carry.K)
         from_pol = policy_samples(plant, policy, keys.policy, samples, mode=mode, gamma=gamma)
-        from_nu = draw_nu(which, keys.nu, from_pol)
+        if from_nu is None:
+            from_nu = from_pol
         learner, loss_sum, stats = learning_step(
             agent, carry.learner, carry.loss_sum, from_pol, from_nu, keys.mix, n, p, samples
         )
         return carry._replace(learner=learner, loss_sum=loss_sum), stats
 
-    def skip(carry: _Carry, key, n, p, which):
-        stats = jax.eval_shape(learn, carry, key, n, p, which)[1]
-        return carry, jax.tree_util.tree_map(lambda a: jnp.zeros(a.shape, a.dtype), stats)
+    def learn_lanes(carry: _Carry, keys, lane_keys, n, p, which):
+        from_nu = nu_draws(keys, n, which)
+        nu_axis = None if from_nu is None else 0
+        return jax.vmap(learn, in_axes=(0, 0, None, 0, nu_axis))(carry, lane_keys, n, p, from_nu)
 
-    def learn_after_first(carry: _Carry, key, n, p, which):
-        """Iteration 1 collects nothing: the learning half is skipped (a ``cond`` on the
-        unbatched ``n``, so only the taken branch runs) and its statistics are zeros."""
-        return jax.lax.cond(n > 1, learn, skip, carry, key, n, p, which)
+    def skip(carry: _Carry, keys, lane_keys, n, p, which):
+        stats = jax.eval_shape(learn_lanes, carry, keys, lane_keys, n, p, which)[1]
+        return carry, jax.tree_util.tree_map(lambda a: jnp.zeros(a.shape, a.dtype), stats)
 
     # the carry is donated: run_learning never reads the old one, and XLA then updates the
     # learner's sufficient statistics in place instead of copying them (~110 MB on the funnel)
     @functools.partial(jax.jit, donate_argnums=0)
     def step(carry: _Carry, keys, noise, n, p, which=0):
-        in_axes = (0, 0, None, None, None)
-        carry, stats = jax.vmap(learn_after_first, in_axes=in_axes)(carry, keys, n, p, which)
-        carry, (mean, median, div, info, extra) = solve_and_test(carry, keys, noise, n, p)
+        """Iteration ``n`` of every lane: ``keys [S]`` the seeds', ``p``, ``which`` scalars (one
+        method) or ``[M]`` (M methods; the carry's lanes ``[M·S]``, method-major; ``noise``
+        the lanes' :func:`lane_noise`). Iteration 1 collects nothing: the learning half is
+        skipped (a ``cond`` on ``n``, so only the taken branch runs) and its statistics are
+        zeros."""
+        p, which = jnp.atleast_1d(p), jnp.atleast_1d(which)
+        methods = p.shape[0]
+        lane_keys = jnp.concatenate([keys] * methods) if methods > 1 else keys
+        lane_p = jnp.repeat(p, keys.shape[0])
+        args = (carry, keys, lane_keys, n, lane_p, which)
+        carry, stats = jax.lax.cond(n > 1, learn_lanes, skip, *args)
+        carry, (mean, median, div, info, extra) = solve_and_test(carry, lane_keys, noise, n, lane_p)
         return carry, Row(
             test_cost=mean, test_cost_median=median, diverged=div, **stats._asdict(),
             solver_converged=info.converged, spectral_radius=info.spectral_radius, extra=extra,
         )  # fmt: skip
 
-    def start(keys, noise):
-        """Iteration 1: the initial model solved and tested (the same compiled ``step``)."""
-        return step(init(keys), keys, noise, jnp.int32(1), jnp.float64(0.0), jnp.int32(0))
+    def start(keys, noise, methods: int = 1):
+        """Iteration 1 of ``methods`` methods' lanes (``noise``: the lanes' :func:`lane_noise`):
+        the initial model solved and tested (the same compiled ``step``)."""
+        lane_keys = jnp.concatenate([keys] * methods) if methods > 1 else keys
+        zeros = (jnp.zeros(methods), jnp.zeros(methods, jnp.int32))
+        return step(init(lane_keys), keys, noise, jnp.int32(1), *zeros)
 
     return Cell(start, step, noise_program(plant, n_test, test_policy))
 
@@ -339,21 +385,24 @@ def program_bytes(compiled) -> int:
     )  # fmt: skip
 
 
-def cell_memory(cell: Cell, seeds: int, *, test_only: bool = False) -> int:
-    """Peak bytes of a :class:`Cell`'s programs for ``seeds`` seeds (:func:`program_bytes`): the
-    larger of the test-noise program and one ``step`` (which holds the noise, the carry and the
-    row). ``test_only``: the noise program alone (a fixed policy's test, or the policy-gradient
-    baseline's, reads the noise in place and keeps one state per trajectory).
+def cell_memory(cell: Cell, seeds: int, *, test_only: bool = False, methods: int = 1) -> int:
+    """Peak bytes of a :class:`Cell`'s programs for ``seeds`` seeds of ``methods`` methods
+    (:func:`program_bytes`): the larger of the test-noise program and one ``step`` (which holds
+    the noise, the carry and the row). ``test_only``: the noise program alone (a fixed
+    policy's test, or the policy-gradient baseline's, reads the noise in place and keeps one
+    state per trajectory).
 
-    Both programs are compiled for ``seeds`` seeds exactly as :func:`run_learning` calls them,
+    Both programs are compiled for ``seeds`` seeds exactly as :func:`run_lanes` calls them,
     so a run of that many seeds in this process reuses the compilation (JAX's executable cache)."""
     keys = jax.ShapeDtypeStruct((int(seeds),), jax.random.key(0).dtype)
     noise = jax.eval_shape(cell.noise, keys)
     peak = program_bytes(cell.noise.lower(keys).compile())
     if test_only:
         return peak
-    carry = jax.eval_shape(lambda k, w: cell.start(k, w)[0], keys, noise)
-    args = (carry, keys, noise, jnp.int32(1), jnp.float64(0.0), jnp.int32(0))
+    noise = jax.eval_shape(lambda w: lane_noise(w, methods), noise)
+    carry = jax.eval_shape(lambda k, w: cell.start(k, w, methods)[0], keys, noise)
+    zeros = (jnp.zeros(methods), jnp.zeros(methods, jnp.int32))
+    args = (carry, keys, noise, jnp.int32(1), *zeros)
     return max(peak, program_bytes(cell.step.lower(*args).compile()))
 
 
@@ -374,7 +423,8 @@ def run_learning(
     which: int = 0,
     noise: EvalNoise | None = None,
 ) -> Trace:
-    """Run one learning method for ``len(fractions)`` iterations on every seed.
+    """Run one learning method for ``len(fractions)`` iterations on every seed
+    (:func:`run_lanes` with one method).
 
     ``fractions[n−1]`` is the probability ``p_n`` that a slot of iteration n's batch comes from
     the policy (``fractions[0]`` is unused: iteration 1 collects nothing). ``progress(n, row)`` is
@@ -383,13 +433,51 @@ def run_learning(
     across methods (DAgger, Batch, Abbeel) and calls; ``which`` picks the ν of a list.
     ``noise``: the seeds' :class:`EvalNoise` (default: the cell's ``noise(keys)``).
     """
-    which = jnp.int32(which)
-    fractions = np.asarray(fractions, dtype=np.float64)
-    iterations = int(fractions.shape[0])
+    return run_lanes(
+        plant, agent, nu, [fractions], seeds, samples=samples, n_test=n_test, mode=mode,
+        gamma=gamma, test_policy=test_policy, progress=progress, cell=cell, which=[which],
+        noise=noise,
+    )[0]  # fmt: skip
+
+
+def run_lanes(
+    plant: LoopPlant,
+    agent: Agent,
+    nu,
+    schedules,
+    seeds,
+    *,
+    samples: int,
+    n_test: int,
+    mode: str = "trajectory",
+    gamma: float = 0.99,
+    test_policy: str = "last",
+    progress: Callable[[int, Row], None] | None = None,
+    cell=None,
+    which: Sequence[int] = (0,),
+    noise: EvalNoise | None = None,
+) -> list[Trace]:
+    """Run M learning methods on every seed as one *lane set*: the lanes are the (method, seed)
+    pairs, ``M·S`` of them, method-major, and every iteration of all of them is one call of the
+    cell's ``step``. Returns one :class:`Trace` per method.
+
+    A method is data: its row of ``schedules [M, N]`` (the policy fractions ``p_n``, as
+    ``fractions`` of :func:`run_learning`) and its ν index ``which[m]``. Every draw depends on
+    the seed and the iteration only (:mod:`loopid.algorithms.keys`) and each lane's numbers on
+    its own inputs only, so a lane has the same numbers in any lane set (the same as
+    :func:`run_learning` of its method: tested), and any subset of methods or seeds reruns
+    bit for bit. ν's draws and the test noise are computed once per seed and shared by the
+    methods' lanes. ``progress(n, row)``: after each iteration, the row's leaves ``[M·S]``.
+    """
+    schedules = np.asarray(schedules, dtype=np.float64)
+    if schedules.ndim != 2 or schedules.shape[0] < 1:
+        raise ValueError(f"schedules must be [methods, iterations], got shape {schedules.shape}")
+    methods, iterations = schedules.shape
     if iterations < 1:
         raise ValueError(f"iterations must be >= 1, got {iterations}")
-    if ((fractions < 0) | (fractions > 1)).any():
-        raise ValueError(f"policy fractions must lie in [0, 1], got {fractions.tolist()}")
+    if ((schedules < 0) | (schedules > 1)).any():
+        raise ValueError(f"policy fractions must lie in [0, 1], got {schedules.tolist()}")
+    which = jnp.asarray(np.asarray(which, dtype=np.int32).reshape(methods))
     keys = seed_keys(seeds)
     if cell is None:
         cell = make_cell(
@@ -397,13 +485,12 @@ def run_learning(
             gamma=gamma, test_policy=test_policy,
         )  # fmt: skip
     start, step, noise_of = cell
-    if noise is None:
-        noise = noise_of(keys)
+    noise = lane_noise(noise_of(keys) if noise is None else noise, methods)
 
     def one(carry, n):
-        return step(carry, keys, noise, jnp.int32(n), jnp.float64(fractions[n - 1]), which)
+        return step(carry, keys, noise, jnp.int32(n), jnp.asarray(schedules[:, n - 1]), which)
 
-    carry, rows = drive(lambda: start(keys, noise), one, iterations, progress)
+    carry, rows = drive(lambda: start(keys, noise, methods), one, iterations, progress)
     final = {"K": carry.K}
     if agent.params is not None:
         final |= jax.vmap(agent.params)(carry.learner)
@@ -411,7 +498,21 @@ def run_learning(
         final["best_K"] = carry.best_K
     if test_policy == "mixture":
         final["history"] = carry.history
-    return _trace(seeds, samples, rows, final)
+    S = len(keys)
+    return [
+        _trace(
+            seeds,
+            samples,
+            [_lanes(row, m, S) for row in rows],
+            {k: _lanes(v, m, S) for k, v in final.items()},
+        )
+        for m in range(methods)
+    ]
+
+
+def _lanes(tree, m: int, seeds: int):
+    """Method ``m``'s lanes (``[m·S : (m+1)·S]``) of every leaf of a lane set's tree."""
+    return jax.tree_util.tree_map(lambda a: a[m * seeds : (m + 1) * seeds], tree)
 
 
 def run_fixed_policy(
@@ -460,14 +561,21 @@ def run_fixed_policy(
 MIN_SEEDS = 3
 
 
-def at_least(run: Callable[[np.ndarray], Trace], seeds) -> Trace:
+def at_least(run: Callable[[np.ndarray], Any], seeds):
     """``run(seeds)`` on at least :data:`MIN_SEEDS` seeds (padded with copies of the last), its
-    :class:`Trace` cut back to ``seeds``."""
+    :class:`Trace` (or each of a dict of them) cut back to ``seeds``."""
     seeds = np.asarray(seeds)
     if seeds.ndim != 1 or seeds.size == 0 or seeds.size >= MIN_SEEDS:
         return run(seeds)
     padded = np.concatenate([seeds, np.full(MIN_SEEDS - seeds.size, seeds[-1], seeds.dtype)])
-    trace = run(padded)
+    out = run(padded)
+    if isinstance(out, dict):
+        return {k: _cut(trace, seeds) for k, trace in out.items()}
+    return _cut(out, seeds)
+
+
+def _cut(trace: Trace, seeds: np.ndarray) -> Trace:
+    """``trace`` of padded seeds cut back to its first ``len(seeds)``."""
     n = seeds.size
     cut = jax.tree_util.tree_map(lambda a: a[:n], trace.rows)
     final = None if trace.final is None else {k: v[:n] for k, v in trace.final.items()}
@@ -485,6 +593,6 @@ def _trace(seeds, samples: int, rows: list[Row], final: dict | None = None) -> T
 __all__ = [  # the contracts and key streams, importable from here as before
     "EVALUATE", "TEST_POLICIES", "Agent", "Cell", "Diagnostics", "EvalNoise", "IterationKeys",
     "Row", "SolverInfo", "Trace", "at_least", "cell_memory", "drive", "eval_noise",
-    "iteration_key", "iteration_keys", "learning_step", "make_cell", "noise_program",
-    "run_fixed_policy", "run_learning", "seed_keys", "trajectory_mean",
+    "iteration_key", "iteration_keys", "lane_noise", "learning_step", "make_cell", "noise_program",
+    "run_fixed_policy", "run_lanes", "run_learning", "seed_keys", "trajectory_mean",
 ]  # fmt: skip

@@ -103,16 +103,20 @@ class CellResult(NamedTuple):
 
 def run_cell(
     s: Scenario,
-    method: str,
+    method: str | tuple[str, ...],
     seeds,
     progress: Callable[[int, Row], None] | None = None,
     *,
     started: float | None = None,
-) -> CellResult:
+) -> CellResult | dict[str, CellResult]:
     """One cell: its rows (:func:`loopid.experiments.results.trace_table`), with its timings in
     the table's metadata: ``wall_s`` (the whole cell) and ``first_s`` (until iteration 2 was
     done: compilation plus two iterations), both from ``started`` (a ``time.perf_counter()``;
-    default now); and its final policies and models."""
+    default now); and its final policies and models.
+
+    A tuple of methods is a lane set (the family's ``lane_sets``, run by its ``run_lanes``):
+    ``{method: CellResult}``, each cell's ``wall_s`` the lane set's time shared equally among
+    its methods (metadata ``lane_set`` names them)."""
     t0 = time.perf_counter() if started is None else started
     first = [None]
 
@@ -122,13 +126,21 @@ def run_cell(
         if progress is not None:
             progress(n, row)
 
-    trace = family_of(s).run(method, s, seeds, progress=tick)
-    wall = time.perf_counter() - t0
-    table = trace_table(s.name, method, trace)
-    table = with_metadata(table, wall_s=f"{wall:.3f}", first_s=f"{first[0] or wall:.3f}")
     family = family_of(s)
-    shared = family.shared(s, method) if family.shared is not None else {}
-    return CellResult(table, np.asarray(trace.seeds), dict(trace.final or {}), shared)
+    if isinstance(method, tuple):
+        traces = family.run_lanes(method, s, seeds, progress=tick)
+    else:
+        traces = {method: family.run(method, s, seeds, progress=tick)}
+    wall = time.perf_counter() - t0
+    results = {}
+    for m, trace in traces.items():
+        meta = {"wall_s": f"{wall / len(traces):.3f}", "first_s": f"{first[0] or wall:.3f}"}
+        if isinstance(method, tuple):
+            meta["lane_set"] = ",".join(method)
+        table = with_metadata(trace_table(s.name, m, trace), **meta)
+        shared = family.shared(s, m) if family.shared is not None else {}
+        results[m] = CellResult(table, np.asarray(trace.seeds), dict(trace.final or {}), shared)
+    return results if isinstance(method, tuple) else results[method]
 
 
 def _out_of_memory(e: BaseException) -> bool:
@@ -145,14 +157,15 @@ class Oversized(NamedTuple):
 
 def run_chunk(
     s: Scenario,
-    method: str,
+    method: str | tuple[str, ...],
     seeds,
     progress: Callable[[int, Row], None] | None = None,
     *,
     limit: int | None = None,
-) -> CellResult | Oversized:
-    """What an executor runs: :func:`run_cell` on a whole cell's or one chunk's seeds; an
-    out-of-memory error from JAX becomes one line saying what to lower.
+) -> CellResult | dict[str, CellResult] | Oversized:
+    """What an executor runs: :func:`run_cell` on a whole cell's or one chunk's seeds (of one
+    method, or of a lane set's); an out-of-memory error from JAX becomes one line saying what
+    to lower.
 
     ``limit``: the bytes this process may use. For a family with a memory estimate the task
     first compiles its programs and reads their peak from them (``family.memory``, the same
@@ -169,10 +182,15 @@ def run_chunk(
     except Exception as e:
         if _out_of_memory(e):
             raise ValueError(
-                f"{s.name} / {method}: out of memory running {len(seeds)} seeds at once; lower "
-                "--memory (chunks are sized to it) or --workers"
+                f"{s.name} / {_names(method)}: out of memory running {len(seeds)} seeds at "
+                "once; lower --memory (chunks are sized to it) or --workers"
             ) from None
         raise
+
+
+def _names(method: str | tuple[str, ...]) -> str:
+    """A task's method, or its lane set's methods, for messages."""
+    return method if isinstance(method, str) else ",".join(method)
 
 
 #: What a task holds in host memory per iteration (the iteration's row objects, about 1 kB) and
@@ -181,12 +199,15 @@ def run_chunk(
 ITERATION_BYTES, ROW_BYTES = 1000, 150
 
 
-def check_rows(scenarios: Sequence[Scenario], seeds: np.ndarray, limit: int) -> None:
+def check_rows(
+    scenarios: Sequence[Scenario], seeds: np.ndarray, limit: int, methods: int = 1
+) -> None:
     """Refuse, in one line, a scenario whose rows alone cannot fit one process's memory budget
-    (``limit`` bytes): a task keeps every iteration's rows of its seeds until it ends, about
-    ``iterations · (ITERATION_BYTES + ROW_BYTES · seeds)`` bytes, whatever the chunking of its
-    seeds (so ``--iterations 1000000000`` is refused at once instead of running for hours)."""
-    chunk = chunks.speed_seeds(len(seeds))
+    (``limit`` bytes): a task keeps every iteration's rows of its seeds (of each of its
+    ``methods``, a lane set's) until it ends, about ``iterations · (ITERATION_BYTES + ROW_BYTES
+    · seeds · methods)`` bytes, whatever the chunking of its seeds (so ``--iterations
+    1000000000`` is refused at once instead of running for hours)."""
+    chunk = chunks.speed_seeds(len(seeds)) * methods
     for s in scenarios:
         need = s.iterations * (ITERATION_BYTES + ROW_BYTES * chunk)
         if need > limit:
@@ -258,6 +279,7 @@ def run_cells(
     memory: float | None = None,
     on_cell: ProgressFactory | None = None,
     log: Callable[[str], None] | None = None,
+    lanes: bool | None = None,
 ) -> pa.Table:
     """Run every (scenario, method) cell not yet finished in ``out``; return the full table.
 
@@ -269,7 +291,10 @@ def run_cells(
     of all the processes computing at once (default: :func:`loopid.experiments.chunks.budget`);
     cells that do not fit run in seed chunks. Each finished cell is saved at once (atomically),
     its artifacts (:mod:`.artifacts`) before its rows; ``results.parquet`` is rewritten after
-    every cell.
+    every cell. ``lanes``: run the methods a family groups as lane sets (its ``lane_sets``) as
+    one task per seed chunk, every (method, seed) pair a lane of one program (default: on an
+    accelerator, where width is nearly free; a CPU runs each method's seeds as one program,
+    which measured as fast or faster there); the table is the same either way.
     """
     seeds = check_cells(scenarios, methods, seeds)
     check_executor(executor_name, ray_address)
@@ -287,7 +312,7 @@ def run_cells(
             with ray_session(ray_address):
                 return run_cells(
                     out, scenarios, methods, seeds, executor_name="ray", memory=memory,
-                    on_cell=on_cell, log=log,
+                    on_cell=on_cell, log=log, lanes=lanes,
                 )  # fmt: skip
     rd = RunDir(out)
     config = resolved_config(scenarios, methods, seeds)
@@ -304,8 +329,12 @@ def run_cells(
                 todo.append((s, m))
     processes = options.get("workers", 1) if executor_name == "local" else (os.cpu_count() or 1)
     limit = chunks.budget(memory, processes)  # each process computing at once gets its share
-    check_rows(scenarios, seeds, limit)
-    jobs = _plan(rd, todo, seeds, family)
+    if lanes is None:
+        lanes = backend.accelerator()
+    groups = _lane_sets(family, todo) if lanes and family.run_lanes is not None else None
+    widest = max((len(g) for g in (groups or {}).values()), default=1)
+    check_rows(scenarios, seeds, limit, widest)
+    jobs = _plan(rd, todo, seeds, family, groups)
     cell_progress = _progress(rd, todo, seeds, on_cell)
 
     def run_round(jobs, task) -> list[Job]:
@@ -314,6 +343,9 @@ def run_cells(
         for job, done in executor(executor_name)(jobs, task, on_job=cell_progress, **options):
             if isinstance(done, Oversized):
                 retry += _resplit(job, done.nbytes, seeds, limit)
+            elif isinstance(done, dict):  # a lane set: each method's cell (or chunk)
+                for m, result in done.items():
+                    _save(rd, config, order, family, seeds, job._replace(method=m), result, log)
             else:
                 _save(rd, config, order, family, seeds, job, done, log)
         return retry
@@ -388,21 +420,48 @@ def _first(final: dict, count: int) -> dict:
     return {k: np.asarray(v)[:count] for k, v in final.items()}
 
 
-def _plan(rd: RunDir, todo, seeds: np.ndarray, family: Family) -> list[Job]:
+def _lane_sets(family: Family, todo) -> dict[str, list[tuple[str, ...]]]:
+    """``{scenario name: lane sets}`` of the unfinished cells (the family's ``lane_sets`` of
+    each scenario's unfinished methods)."""
+    methods: dict[str, list[str]] = {}
+    configs = {}
+    for s, m in todo:
+        methods.setdefault(s.name, []).append(m)
+        configs[s.name] = s
+    return {name: family.lane_sets(configs[name], ms) for name, ms in methods.items()}
+
+
+def _plan(rd: RunDir, todo, seeds: np.ndarray, family: Family, groups=None) -> list[Job]:
     """The tasks of the unfinished cells: each cell's missing seeds, in chunks of at most
     :func:`loopid.experiments.chunks.speed_seeds` (at least ``MIN_CHUNK``) for families with a
     memory estimate, else whole; a cell that is one chunk is saved as a cell, with no chunk
-    files."""
+    files. ``groups`` (:func:`_lane_sets`): the methods of a lane set that miss the same seeds
+    run as one task per chunk (its ``method`` the tuple of them)."""
     least = chunks.MIN_CHUNK if family.memory else 1  # chunked families: one lowering a seed
     most = chunks.speed_seeds(len(seeds)) if family.memory else len(seeds)
+    missing = {
+        (s.name, m): tuple(chunks.ChunkFiles(rd.cells, s.name, m).missing(len(seeds)))
+        for s, m in todo
+    }
+    tasks = [(s, m) for s, m in todo]
+    if groups is not None:
+        configs = {s.name: s for s, _ in todo}
+        tasks = []
+        for name, sets in groups.items():
+            for lane_set in sets:
+                same: dict[tuple, list[str]] = {}  # methods missing the same seeds
+                for m in lane_set:
+                    same.setdefault(missing[(name, m)], []).append(m)
+                for ms in same.values():
+                    tasks.append((configs[name], ms[0] if len(ms) == 1 else tuple(ms)))
     jobs = []
-    for s, m in todo:
-        left = chunks.ChunkFiles(rd.cells, s.name, m).missing(len(seeds))
+    for s, m in tasks:
+        left = list(missing[(s.name, m if isinstance(m, str) else m[0])])
         jobs += _jobs(s, m, chunks.split(seeds, left, min(len(left), most), least))
     return jobs
 
 
-def _jobs(s: Scenario, method: str, parts: list[chunks.Chunk]) -> list[Job]:
+def _jobs(s: Scenario, method: str | tuple, parts: list[chunks.Chunk]) -> list[Job]:
     return [Job(s, method, c.seeds, (c.start, c.stop)) for c in parts]
 
 
@@ -411,32 +470,39 @@ def _resplit(job: Job, nbytes: int, seeds: np.ndarray, limit: int) -> list[Job]:
     (:func:`loopid.experiments.chunks.chunk_size`: the programs' memory is affine in the seeds,
     so ``⌊S · limit / nbytes⌋`` of them fit); a one-line ``ValueError`` when not even
     ``MIN_CHUNK`` do."""
-    where = f"{job.scenario.name} / {job.method}"
+    where = f"{job.scenario.name} / {_names(job.method)}"
     size = chunks.chunk_size(nbytes, len(job.seeds), limit, where)
     return _jobs(job.scenario, job.method, chunks.split(seeds, list(range(*job.part)), size))
 
 
 def _progress(rd: RunDir, todo, seeds: np.ndarray, on_cell: ProgressFactory | None):
     """``on_job(job) -> callback(n, row)``: one bar per cell over seeds × iterations, its
-    chunks' iterations adding up (saved chunks count as done)."""
+    chunks' iterations adding up (saved chunks count as done); a lane set's task advances the
+    bar of each of its methods."""
     if on_cell is None:
         return None
     bars: dict = {}
 
-    def on_job(job: Job):
-        s = job.scenario
-        key = (s.name, job.method)
+    def bar(s: Scenario, method: str):
+        key = (s.name, method)
         if key not in bars:
             saved = len(seeds) - len(chunks.ChunkFiles(rd.cells, *key).missing(len(seeds)))
-            bars[key] = (on_cell(s.name, job.method, len(seeds) * s.iterations), {}, saved)
-        advance, parts, saved = bars[key]
+            bars[key] = (on_cell(s.name, method, len(seeds) * s.iterations), {}, saved)
+        return bars[key]
+
+    def on_job(job: Job):
+        s = job.scenario
+        methods = (job.method,) if isinstance(job.method, str) else job.method
         count = job.part[1] - job.part[0]
-        if advance is None:
+        mine = [bar(s, m) for m in methods]
+        mine = [b for b in mine if b[0] is not None]
+        if not mine:
             return None
 
         def tick(n: int, row) -> None:
-            parts[job.part] = n * count
-            advance(saved * s.iterations + sum(parts.values()))
+            for advance, parts, saved in mine:
+                parts[job.part] = n * count
+                advance(saved * s.iterations + sum(parts.values()))
 
         return tick
 

@@ -65,7 +65,14 @@ class Family:
         re-plans on) with the ``shared.*`` ones whole; None when the family cannot.
       memory: ``memory(config, method, seeds) -> bytes``: the peak memory of one cell's
         programs for that many seeds (:mod:`loopid.experiments.chunks` sizes chunks with it);
-        None when the family's cells run unchunked (all seeds at once).
+        None when the family's cells run unchunked (all seeds at once). A family with lane
+        sets also takes a tuple of methods: the peak of their lane set.
+      lane_sets: ``lane_sets(config, methods) -> [tuple of methods]``: the methods grouped as
+        they can run together as one *lane set* (one compiled program over every (method,
+        seed) pair: width an accelerator computes at the cost of one); None: each alone.
+      run_lanes: ``run_lanes(methods, config, seeds, progress=None) -> {method: Trace}``: one
+        group of ``lane_sets``, each method's trace the same numbers as ``run``'s;
+        ``progress(n, row)`` with the row's leaves over the lanes. None without lane sets.
     """
 
     name: str
@@ -84,7 +91,9 @@ class Family:
     evaluate: Callable[..., Any] | None = None
     trajectories: Callable[..., Any] | None = None
     animate: Callable[..., Any] | None = None
-    memory: Callable[[Any, str, int], int] | None = None
+    memory: Callable[[Any, Any, int], int] | None = None
+    lane_sets: Callable[[Any, Sequence[str]], list[tuple[str, ...]]] | None = None
+    run_lanes: Callable[..., dict[str, Trace]] | None = None
 
     def field_names(self) -> tuple[str, ...]:
         """The config dataclass's field names."""

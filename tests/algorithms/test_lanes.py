@@ -1,0 +1,116 @@
+"""A lane set (:func:`loopid.algorithms.loop.run_lanes`): several methods on every seed as one
+program gives each method the numbers it has alone, bit for bit, in any subset and order.
+
+Small finite MDPs keep the programs cheap; two ν samplers make the lanes draw from a list
+(the helicopter's three, with the expert's rollouts, are checked end to end in
+``tests/experiments/test_lane_sets.py``)."""
+
+import jax
+import numpy as np
+import pytest
+
+from loopid.algorithms.loop import EvalNoise, lane_noise, make_cell, run_lanes, run_learning
+from loopid.algorithms.mdp_agent import (
+    counts_model,
+    explicit_nu,
+    mdp_agent,
+    mdp_diagnostics,
+    mdp_plant,
+    policy_nu,
+)
+from loopid.algorithms.methods import policy_fractions
+from loopid.systems.mdp import random_mdp
+
+ITERATIONS, SAMPLES, SEEDS = 5, 12, np.arange(4)
+#: (policy fractions of DAgger, Batch or Abbeel, ν index): six methods of two ν samplers
+METHODS = [(m, w) for m in ("dagger-t", "batch-t", "abbeel") for w in (0, 1)]
+
+
+@pytest.fixture(scope="module")
+def lanes():
+    mdp = random_mdp(jax.random.key(3), 5, 2, gamma=0.9)
+    uniform = np.full((5, 2), 0.1)
+    _, second = policy_nu(mdp, np.tile([0.8, 0.2], (5, 1)))
+    model = counts_model(5, 2)
+    plant, agent = mdp_plant(mdp, 15), mdp_agent(mdp, model)
+    cell = make_cell(
+        plant, agent, [explicit_nu(mdp, uniform), second], samples=SAMPLES,
+        iterations=ITERATIONS, n_test=1, mode="geometric", gamma=0.9,
+        diagnostics=mdp_diagnostics(mdp, uniform, model),
+    )  # fmt: skip
+
+    def run(methods):
+        schedules = [policy_fractions(m, ITERATIONS) for m, _ in methods]
+        return run_lanes(
+            plant, agent, None, schedules, SEEDS, samples=SAMPLES, n_test=1, mode="geometric",
+            gamma=0.9, cell=cell, which=[w for _, w in methods],
+        )  # fmt: skip
+
+    def alone(method):
+        m, w = method
+        return run_learning(
+            plant, agent, None, policy_fractions(m, ITERATIONS), SEEDS, samples=SAMPLES,
+            n_test=1, mode="geometric", gamma=0.9, cell=cell, which=w,
+        )  # fmt: skip
+
+    return run, alone
+
+
+#: The MDP plant's exact test cost is a vmapped linear solve, whose last bit depends on how many
+#: policies it solves at once (a lane set solves M·S of them): 1e-12 relative there, every
+#: other number bit for bit. (The helicopter's tests, a scan per trajectory, are bit for bit:
+#: ``tests/experiments/test_lane_sets.py``.)
+WIDTH_DEPENDENT = ("test_cost", "test_cost_median")
+
+
+def _assert_same(a, b, what):
+    for field in a.rows._fields:
+        x, y = getattr(a.rows, field), getattr(b.rows, field)
+        if field in WIDTH_DEPENDENT:
+            np.testing.assert_allclose(x, y, rtol=1e-12, atol=0, err_msg=f"{what} {field}")
+        else:
+            for u, v in zip(
+                jax.tree_util.tree_leaves(x), jax.tree_util.tree_leaves(y), strict=True
+            ):
+                np.testing.assert_array_equal(u, v, err_msg=f"{what} {field}")
+    assert a.final.keys() == b.final.keys()
+    for k in a.final:
+        np.testing.assert_array_equal(a.final[k], b.final[k], err_msg=f"{what} {k}")
+
+
+def test_a_lane_set_equals_each_method_alone(lanes):
+    run, alone = lanes
+    traces = run(METHODS)
+    assert len(traces) == len(METHODS)
+    for method, trace in zip(METHODS, traces, strict=True):
+        assert trace.rows.test_cost.shape == (len(SEEDS), ITERATIONS)
+        assert set(trace.rows.extra)  # the exact diagnostics ran per lane, with its own p
+        _assert_same(trace, alone(method), method)
+    # the methods differ, so a lane that read another method's p or ν would have been caught
+    costs = [t.rows.loss_nu[:, 1:] for t in traces]
+    assert not np.array_equal(costs[0], costs[1])  # ν index 0 vs 1
+    assert not np.array_equal(traces[0].rows.policy_samples, traces[2].rows.policy_samples)
+
+
+def test_any_subset_in_any_order_gives_the_same_rows(lanes):
+    run, _ = lanes
+    full = dict(zip(METHODS, run(METHODS), strict=True))
+    subset = [METHODS[4], METHODS[1], METHODS[3]]
+    for method, trace in zip(subset, run(subset), strict=True):
+        _assert_same(trace, full[method], method)
+
+
+def test_lane_noise_repeats_each_seed_method_major():
+    w = np.arange(2 * 3 * 4 * 5, dtype=float).reshape(2, 3, 4, 5)  # [horizon, n_noise, S, n]
+    noise = lane_noise(EvalNoise(w, np.zeros(0)), 3)
+    tiled = np.asarray(noise.test)
+    assert tiled.shape == (2, 3, 12, 5) and noise.select.shape == (0,)
+    for m in range(3):
+        np.testing.assert_array_equal(tiled[:, :, 4 * m : 4 * (m + 1)], w)
+
+
+def test_schedules_must_be_methods_by_iterations():
+    with pytest.raises(ValueError, match="schedules must be"):
+        run_lanes(None, None, None, [0.5, 0.5], SEEDS, samples=1, n_test=1)
+    with pytest.raises(ValueError, match="policy fractions must lie in"):
+        run_lanes(None, None, None, [[0.5, 1.5]], SEEDS, samples=1, n_test=1)

@@ -1,0 +1,70 @@
+"""Lane sets through the pipeline (``run_cells(lanes=True)``, the default on an accelerator): the
+helicopter's learning methods as one program per seed chunk give the table and saved arrays of
+the methods run one by one, bit for bit, and a lane set killed between chunks resumes to it."""
+
+import numpy as np
+import pytest
+
+from loopid.experiments import chunks
+from loopid.experiments.execute import run_cells
+from loopid.experiments.results import metadata, read_table
+from loopid.experiments.scenarios import scenario
+
+pytestmark = pytest.mark.slow  # two compilations of the hover cell (~20 s each)
+
+#: three ν kinds (the expert's rollouts among them) and Abbeel's schedule, plus the expert alone
+METHODS = ["dagger-t", "batch-e", "abbeel", "dagger-en", "expert"]
+LANES = METHODS[:4]
+HOVER = scenario("hover", seeds=6, iterations=3, samples=50, test_trajectories=10)
+
+
+@pytest.fixture(scope="module")
+def one_by_one(tmp_path_factory):
+    """The reference: each method its own cell, in two seed chunks of 3."""
+    out = tmp_path_factory.mktemp("one_by_one")
+    with pytest.MonkeyPatch.context() as mp:
+        mp.setattr(chunks, "SPEED_SEEDS", 3)
+        run_cells(out, [HOVER], METHODS, workers=1, lanes=False)
+    return out
+
+
+def _arrays(run_dir, method):
+    with np.load(run_dir / "cells" / f"hover__{method}.npz") as f:
+        return {k: f[k] for k in f.files}
+
+
+def _assert_same_run(a, b):
+    assert read_table(a / "results.parquet").equals(read_table(b / "results.parquet"))
+    for m in METHODS:
+        x, y = _arrays(a, m), _arrays(b, m)
+        assert x.keys() == y.keys(), m
+        for k in x:
+            np.testing.assert_array_equal(x[k], y[k], err_msg=f"{m} {k}")
+
+
+def test_a_killed_lane_set_resumes_to_the_table_of_the_methods_one_by_one(
+    one_by_one, tmp_path, monkeypatch
+):
+    monkeypatch.setattr(chunks, "SPEED_SEEDS", 3)
+    out = tmp_path / "lanes"
+    started = []
+
+    def on_cell(name, method, total):
+        def advance(done):
+            started.append((method, done))
+            if done > 3 * HOVER.iterations:  # the second chunk's first iteration: kill it
+                raise KeyboardInterrupt
+
+        return advance
+
+    with pytest.raises(KeyboardInterrupt):
+        run_cells(out, [HOVER], METHODS, workers=1, lanes=True, on_cell=on_cell)
+    # the first chunk of every lane-set method was saved, as one task (all four advanced)
+    assert {m for m, _ in started} == set(LANES)
+    for m in LANES:
+        assert chunks.ChunkFiles(out / "cells", "hover", m).missing(6) == [3, 4, 5]
+    run_cells(out, [HOVER], METHODS, workers=1, lanes=True)
+    _assert_same_run(one_by_one, out)
+    lane_set = metadata(out / "cells" / "hover__abbeel.parquet")
+    assert lane_set["lane_set"] == ",".join(LANES)
+    assert "lane_set" not in metadata(out / "cells" / "hover__expert.parquet")
