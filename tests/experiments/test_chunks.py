@@ -43,12 +43,12 @@ def test_plan_caps_chunks_for_speed_and_a_task_over_budget_comes_back_in_chunks_
     """30 seeds run in chunks of at most SPEED_SEEDS (3 of 10) whatever the budget; a task
     measures its programs at its own 10 seeds before it runs and, over its share of the budget,
     returns Oversized instead of rows; its seeds then come back as chunks that fit."""
-    from loopid.experiments import execute
+    from loopid.experiments import execute, tasks
     from loopid.experiments.rundir import RunDir
 
     s = scenario("hover", seeds=30, **SMALL)
     family = execute.family_of(s)
-    jobs = execute._plan(RunDir(tmp_path), [(s, "dagger-t")], np.arange(30), family)
+    jobs = tasks.plan(RunDir(tmp_path), [(s, "dagger-t")], np.arange(30), family)
     assert chunks.SPEED_SEEDS == 12
     assert [job.part for job in jobs] == [(0, 10), (10, 20), (20, 30)]
     asked = []
@@ -62,10 +62,10 @@ def test_plan_caps_chunks_for_speed_and_a_task_over_budget_comes_back_in_chunks_
     result = execute.run_chunk(s, "dagger-t", jobs[1].seeds, limit=6000)
     assert result == execute.Oversized(10_000) and asked == [10]
     # 6 seeds fit 6,000 bytes: positions 10..19 as 2 chunks of 5
-    again = execute._resplit(jobs[1], result.nbytes, np.arange(30), 6000)
+    again = tasks.resplit(jobs[1], result.nbytes, np.arange(30), 6000)
     assert [(job.part, len(job.seeds)) for job in again] == [((10, 15), 5), ((15, 20), 5)]
     with pytest.raises(ValueError, match=r"^hover / dagger-t: a chunk of 3 seeds needs about"):
-        execute._resplit(jobs[1], result.nbytes, np.arange(30), 2000)
+        tasks.resplit(jobs[1], result.nbytes, np.arange(30), 2000)
 
 
 def test_stacked_arrays_are_saved_as_their_join_one_piece_at_a_time(tmp_path):

@@ -5,7 +5,8 @@ for any family (:mod:`loopid.experiments.families`).
 workers against the machine's CPUs and memory, that ``out`` can be written, that a run
 directory already there holds the same configuration), then:
 
-1. splits each unfinished cell's missing seeds into chunks of at most
+1. splits each unfinished cell's missing seeds into tasks (:mod:`loopid.experiments.tasks`:
+   one method's, or a lane set's methods'), in chunks of at most
    :data:`~loopid.experiments.chunks.SPEED_SEEDS` on a CPU (families with a memory estimate;
    :mod:`loopid.experiments.chunks`; on an accelerator, one process per device and chunks as
    large as its memory allows: :mod:`loopid.experiments.backend`);
@@ -27,7 +28,6 @@ finishes nothing leaves nothing behind. :func:`write_outputs` draws ``figure.png
 
 import os
 import shutil
-import tempfile
 import time
 import tomllib
 from collections.abc import Callable, Mapping, Sequence
@@ -41,7 +41,14 @@ import pyarrow as pa
 import loopid
 from loopid.algorithms.loop import Row
 from loopid.experiments import artifacts, backend, chunks
-from loopid.experiments.config import seed_list, seeds_value
+from loopid.experiments.checks import (
+    Methods,
+    check_cells,
+    check_rows,
+    check_writable,
+    methods_of,
+)
+from loopid.experiments.config import seeds_value
 from loopid.experiments.executors import (
     Job,
     check_executor,
@@ -53,25 +60,17 @@ from loopid.experiments.families import FAMILIES, Family, family_of, scenario_na
 from loopid.experiments.report import cell_times, report_text
 from loopid.experiments.results import trace_table, with_metadata, write_atomic_bytes
 from loopid.experiments.rundir import RunDir, normalized
+from loopid.experiments.tasks import (
+    ProgressFactory,
+    lane_sets,
+    method_names,
+    plan,
+    progress_bars,
+    resplit,
+)
 
 #: A scenario of any family (its config dataclass).
 Scenario = Any
-
-#: ``on_cell(scenario, method, total) -> advance(completed)`` (for progress bars): a cell's work
-#: is ``total`` = seeds × iterations; ``advance`` is called with the seed-iterations done so far
-#: over all its chunks.
-ProgressFactory = Callable[[str, str, int], Callable[[int], None] | None]
-
-
-#: The methods of a run: one list for every scenario, or a list per scenario name.
-Methods = Sequence[str] | Mapping[str, Sequence[str]]
-
-
-def methods_of(methods: Methods, s: Scenario) -> list[str]:
-    """The methods scenario ``s`` runs."""
-    if isinstance(methods, Mapping):
-        return list(methods[s.name])
-    return list(methods)
 
 
 def resolved_config(scenarios: Sequence[Scenario], methods: Methods, seeds) -> dict:
@@ -182,89 +181,10 @@ def run_chunk(
     except Exception as e:
         if _out_of_memory(e):
             raise ValueError(
-                f"{s.name} / {_names(method)}: out of memory running {len(seeds)} seeds at "
+                f"{s.name} / {method_names(method)}: out of memory running {len(seeds)} seeds at "
                 "once; lower --memory (chunks are sized to it) or --workers"
             ) from None
         raise
-
-
-def _names(method: str | tuple[str, ...]) -> str:
-    """A task's method, or its lane set's methods, for messages."""
-    return method if isinstance(method, str) else ",".join(method)
-
-
-#: What a task holds in host memory per iteration (the iteration's row objects, about 1 kB) and
-#: per row of the table (one seed at one iteration, 14 float64/int columns and their share of
-#: the objects, about 150 B): :func:`check_rows`.
-ITERATION_BYTES, ROW_BYTES = 1000, 150
-
-
-def check_rows(
-    scenarios: Sequence[Scenario], seeds: np.ndarray, limit: int, methods: int = 1
-) -> None:
-    """Refuse, in one line, a scenario whose rows alone cannot fit one process's memory budget
-    (``limit`` bytes): a task keeps every iteration's rows of its seeds (of each of its
-    ``methods``, a lane set's) until it ends, about ``iterations · (ITERATION_BYTES + ROW_BYTES
-    · seeds · methods)`` bytes, whatever the chunking of its seeds (so ``--iterations
-    1000000000`` is refused at once instead of running for hours)."""
-    chunk = chunks.speed_seeds(len(seeds)) * methods
-    for s in scenarios:
-        need = s.iterations * (ITERATION_BYTES + ROW_BYTES * chunk)
-        if need > limit:
-            raise ValueError(
-                f"{s.name}: {s.iterations} iterations of {chunk} seeds a task "
-                f"keep about {chunks.size_text(need)} of rows, more than the memory budget of "
-                f"{chunks.size_text(limit)} per process; lower --iterations"
-            )
-
-
-def check_writable(out) -> None:
-    """``ValueError`` in one line unless a run directory can be created and written at ``out``
-    (tried with a temporary file in its nearest existing folder; nothing is left behind)."""
-    out = Path(out)
-    existing = out
-    while not existing.exists() and existing != existing.parent:
-        existing = existing.parent
-    if not existing.is_dir():
-        raise ValueError(f"--out {str(out)!r}: {str(existing)!r} is not a directory")
-    try:
-        with tempfile.TemporaryFile(dir=existing):
-            pass
-    except OSError as e:
-        raise ValueError(f"--out {str(out)!r} cannot be written ({e.strerror or e})") from None
-
-
-def check_cells(scenarios: Sequence[Scenario], methods: Methods, seeds) -> np.ndarray:
-    """Validate a run's cells before anything is written; return the seeds as an array."""
-    if not scenarios:
-        raise ValueError("no scenarios to run")
-    names = [s.name for s in scenarios]
-    if len(set(names)) != len(names):
-        raise ValueError(f"scenario names must differ, got {names}")
-    family = family_of(scenarios[0])
-    others = sorted({family_of(s).name for s in scenarios} - {family.name})
-    if others:
-        raise ValueError(
-            f"one run directory holds one family's scenarios: {family.name}, not also {others}"
-        )
-    if isinstance(methods, Mapping) and set(methods) != set(names):
-        raise ValueError(f"methods are given for {sorted(methods)}, the scenarios are {names}")
-    for s in scenarios:
-        chosen = methods_of(methods, s)
-        if not chosen:
-            raise ValueError("no methods to run")
-        if len(set(chosen)) != len(chosen):
-            raise ValueError(f"methods must differ, got {chosen}")
-        family.check_methods(s, chosen)
-    seeds = seed_list(scenarios[0]) if seeds is None else np.asarray(seeds)
-    if seeds.ndim != 1 or seeds.size == 0 or not np.issubdtype(seeds.dtype, np.integer):
-        raise ValueError(f"seeds must be a non-empty list of integers, got {seeds.tolist()!r}")
-    if (seeds < 0).any():
-        raise ValueError(f"seeds must be >= 0, got {seeds.tolist()}")
-    if family.check is not None:
-        for s in scenarios:
-            family.check(s)
-    return seeds
 
 
 def run_cells(
@@ -331,18 +251,18 @@ def run_cells(
     limit = chunks.budget(memory, processes)  # each process computing at once gets its share
     if lanes is None:
         lanes = backend.accelerator()
-    groups = _lane_sets(family, todo) if lanes and family.run_lanes is not None else None
+    groups = lane_sets(family, todo) if lanes and family.run_lanes is not None else None
     widest = max((len(g) for g in (groups or {}).values()), default=1)
     check_rows(scenarios, seeds, limit, widest)
-    jobs = _plan(rd, todo, seeds, family, groups)
-    cell_progress = _progress(rd, todo, seeds, on_cell)
+    jobs = plan(rd, todo, seeds, family, groups)
+    cell_progress = progress_bars(rd, todo, seeds, on_cell)
 
     def run_round(jobs, task) -> list[Job]:
         """Run the jobs, saving each finished one; return the Oversized ones' smaller chunks."""
         retry = []
         for job, done in executor(executor_name)(jobs, task, on_job=cell_progress, **options):
             if isinstance(done, Oversized):
-                retry += _resplit(job, done.nbytes, seeds, limit)
+                retry += resplit(job, done.nbytes, seeds, limit)
             elif isinstance(done, dict):  # a lane set: each method's cell (or chunk)
                 for m, result in done.items():
                     _save(rd, config, order, family, seeds, job._replace(method=m), result, log)
@@ -418,95 +338,6 @@ def _first_missing(path: Path) -> Path | None:
 
 def _first(final: dict, count: int) -> dict:
     return {k: np.asarray(v)[:count] for k, v in final.items()}
-
-
-def _lane_sets(family: Family, todo) -> dict[str, list[tuple[str, ...]]]:
-    """``{scenario name: lane sets}`` of the unfinished cells (the family's ``lane_sets`` of
-    each scenario's unfinished methods)."""
-    methods: dict[str, list[str]] = {}
-    configs = {}
-    for s, m in todo:
-        methods.setdefault(s.name, []).append(m)
-        configs[s.name] = s
-    return {name: family.lane_sets(configs[name], ms) for name, ms in methods.items()}
-
-
-def _plan(rd: RunDir, todo, seeds: np.ndarray, family: Family, groups=None) -> list[Job]:
-    """The tasks of the unfinished cells: each cell's missing seeds, in chunks of at most
-    :func:`loopid.experiments.chunks.speed_seeds` (at least ``MIN_CHUNK``) for families with a
-    memory estimate, else whole; a cell that is one chunk is saved as a cell, with no chunk
-    files. ``groups`` (:func:`_lane_sets`): the methods of a lane set that miss the same seeds
-    run as one task per chunk (its ``method`` the tuple of them)."""
-    least = chunks.MIN_CHUNK if family.memory else 1  # chunked families: one lowering a seed
-    most = chunks.speed_seeds(len(seeds)) if family.memory else len(seeds)
-    missing = {
-        (s.name, m): tuple(chunks.ChunkFiles(rd.cells, s.name, m).missing(len(seeds)))
-        for s, m in todo
-    }
-    tasks = [(s, m) for s, m in todo]
-    if groups is not None:
-        configs = {s.name: s for s, _ in todo}
-        tasks = []
-        for name, sets in groups.items():
-            for lane_set in sets:
-                same: dict[tuple, list[str]] = {}  # methods missing the same seeds
-                for m in lane_set:
-                    same.setdefault(missing[(name, m)], []).append(m)
-                for ms in same.values():
-                    tasks.append((configs[name], ms[0] if len(ms) == 1 else tuple(ms)))
-    jobs = []
-    for s, m in tasks:
-        left = list(missing[(s.name, m if isinstance(m, str) else m[0])])
-        jobs += _jobs(s, m, chunks.split(seeds, left, min(len(left), most), least))
-    return jobs
-
-
-def _jobs(s: Scenario, method: str | tuple, parts: list[chunks.Chunk]) -> list[Job]:
-    return [Job(s, method, c.seeds, (c.start, c.stop)) for c in parts]
-
-
-def _resplit(job: Job, nbytes: int, seeds: np.ndarray, limit: int) -> list[Job]:
-    """An :class:`Oversized` task's seeds as chunks that fit ``limit``
-    (:func:`loopid.experiments.chunks.chunk_size`: the programs' memory is affine in the seeds,
-    so ``⌊S · limit / nbytes⌋`` of them fit); a one-line ``ValueError`` when not even
-    ``MIN_CHUNK`` do."""
-    where = f"{job.scenario.name} / {_names(job.method)}"
-    size = chunks.chunk_size(nbytes, len(job.seeds), limit, where)
-    return _jobs(job.scenario, job.method, chunks.split(seeds, list(range(*job.part)), size))
-
-
-def _progress(rd: RunDir, todo, seeds: np.ndarray, on_cell: ProgressFactory | None):
-    """``on_job(job) -> callback(n, row)``: one bar per cell over seeds × iterations, its
-    chunks' iterations adding up (saved chunks count as done); a lane set's task advances the
-    bar of each of its methods."""
-    if on_cell is None:
-        return None
-    bars: dict = {}
-
-    def bar(s: Scenario, method: str):
-        key = (s.name, method)
-        if key not in bars:
-            saved = len(seeds) - len(chunks.ChunkFiles(rd.cells, *key).missing(len(seeds)))
-            bars[key] = (on_cell(s.name, method, len(seeds) * s.iterations), {}, saved)
-        return bars[key]
-
-    def on_job(job: Job):
-        s = job.scenario
-        methods = (job.method,) if isinstance(job.method, str) else job.method
-        count = job.part[1] - job.part[0]
-        mine = [bar(s, m) for m in methods]
-        mine = [b for b in mine if b[0] is not None]
-        if not mine:
-            return None
-
-        def tick(n: int, row) -> None:
-            for advance, parts, saved in mine:
-                parts[job.part] = n * count
-                advance(saved * s.iterations + sum(parts.values()))
-
-        return tick
-
-    return on_job
 
 
 def run_family(run_dir) -> tuple[Family | None, dict[str, Scenario]]:

@@ -40,12 +40,13 @@ EXECUTORS = ("local", "ray")
 
 
 class Job(NamedTuple):
-    """One task: a scenario (any family's config), a method, the seeds it runs (a whole cell's,
-    or one chunk's) and ``part``: the chunk's ``(start, stop)`` positions in the run's seed list
-    (None for a whole cell)."""
+    """One task: a scenario (any family's config), a method (or a lane set's tuple of methods,
+    :mod:`loopid.experiments.tasks`), the seeds it runs (a whole cell's, or one chunk's) and
+    ``part``: the chunk's ``(start, stop)`` positions in the run's seed list (None for a whole
+    cell)."""
 
     scenario: Any
-    method: str
+    method: str | tuple[str, ...]
     seeds: Any = None
     part: tuple[int, int] | None = None
 
