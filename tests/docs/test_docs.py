@@ -8,7 +8,6 @@ started when this module starts, so it overlaps the code blocks, which run in th
 
 import ast
 import importlib
-import os
 import re
 import subprocess
 import sys
@@ -71,13 +70,11 @@ def build(tmp_path_factory):
     out = tmp_path_factory.mktemp("docs")
     html = out / "html"
     cmd = [sys.executable, "-m", "sphinx", "-n", "-W", "--keep-going", "-E", "-q", "-j", "1"]
-    env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(ROOT / "src"), *sys.path])}
     process = subprocess.Popen(
         [*cmd, "-b", "html", "-d", str(out / "doctrees"), str(DOCS), str(html)],
         stdout=subprocess.PIPE,
         stderr=subprocess.PIPE,
         text=True,
-        env=env,
     )
     result = []
 
