@@ -8,6 +8,7 @@ started when this module starts, so it overlaps the code blocks, which run in th
 
 import ast
 import importlib
+import pkgutil
 import re
 import subprocess
 import sys
@@ -217,3 +218,21 @@ def test_every_public_name_is_documented(build):
             if not any(pattern.match(i) for i in ids):
                 missing.append(f"{package}.{name}")
     assert not missing, f"public names without documentation: {missing}"
+
+
+def test_every_public_module_is_documented(build):
+    """Every module of the listed packages whose name does not start with ``_`` has its section
+    on an API page (a new module needs its ``automodule`` in ``docs/api/``)."""
+    code, warnings, html = build()
+    assert code == 0, warnings
+    ids = set()
+    for page in (html / "api").glob("*.html"):
+        ids.update(re.findall(r'id="module-([^"]+)"', page.read_text(encoding="utf-8")))
+    modules = set(PACKAGES)
+    for package in PACKAGES:
+        module = importlib.import_module(package)
+        if hasattr(module, "__path__"):
+            for info in pkgutil.walk_packages(module.__path__, package + "."):
+                if not any(part.startswith("_") for part in info.name.split(".")):
+                    modules.add(info.name)
+    assert not sorted(modules - ids), f"modules without an API section: {sorted(modules - ids)}"
