@@ -18,8 +18,8 @@ never NaN.
   policy as the loop's gains ``K [T, m, n]``), :func:`mpc_rollout` / :class:`MPCController`
   (receding-horizon iLQR in JAX and for Gymnasium envs), :func:`replanner` (its re-planning step
   for controllers inside a compiled loop), :class:`Penalized`,
-  :func:`quadratic_cost`, :func:`action_penalty`: the planner of nonlinear models (
-  :mod:`loopid.control.plan`, :mod:`loopid.control.mpc`)
+  :func:`quadratic_cost`, :func:`action_penalty`: the planner of nonlinear models
+  (:mod:`loopid.control.plan`, :mod:`loopid.control.mpc`)
 - :func:`rollout`, :func:`linear_rollout`, :func:`tracking_rollout` -> trajectories
 - :func:`value_iteration`, :func:`policy_iteration`, :func:`evaluate`, :func:`occupancy`: finite
   MDPs (batched), exact policy evaluation and discounted occupancy D_{μ,π}
