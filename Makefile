@@ -4,7 +4,7 @@ PYTHON ?= python3
 VENV := .venv
 PY := $(VENV)/bin/python
 
-.PHONY: reproduce test test-fast lint bench clean
+.PHONY: reproduce test test-fast lint bench docs clean
 
 $(PY):
 	$(PYTHON) -m venv $(VENV)
@@ -14,7 +14,11 @@ $(VENV)/.installed-run: pyproject.toml | $(PY)
 	touch $@
 
 $(VENV)/.installed-test: pyproject.toml | $(PY)
-	$(PY) -m pip install -q -e ".[test,ray]"
+	$(PY) -m pip install -q -e ".[test,ray,docs]"
+	touch $@ $(VENV)/.installed-run $(VENV)/.installed-docs
+
+$(VENV)/.installed-docs: pyproject.toml | $(PY)
+	$(PY) -m pip install -q -e ".[docs]"
 	touch $@ $(VENV)/.installed-run
 
 reproduce: $(VENV)/.installed-run
@@ -39,5 +43,11 @@ lint: $(VENV)/.installed-test
 bench: $(VENV)/.installed-test
 	for f in benchmarks/*.py; do $(PY) $$f || exit 1; done
 
+# The documentation site, offline and strict: a broken reference, a missing image or a page
+# outside the navigation fails the build (tests/docs checks the same in make test).
+docs: $(VENV)/.installed-docs
+	$(PY) -m sphinx -n -W --keep-going -E -b html docs docs/_build/html
+	@echo "open docs/_build/html/index.html"
+
 clean:
-	rm -rf $(VENV) build dist src/*.egg-info .pytest_cache
+	rm -rf $(VENV) build dist src/*.egg-info .pytest_cache docs/_build docs/_generated

@@ -1,6 +1,6 @@
 """One cell of the loop: hover with delay, DAgger with ν_t, 20 seeds × 100 iterations, vs NumPy.
 
-The cell of the paper's Figure 2 (hover-delay panel, SPEC §4.4): 100 samples per iteration,
+The cell of the paper's Figure 2 (its hover-delay panel, at full scale): 100 samples per iteration,
 100 test trajectories of 400 steps per seed and iteration, 20 seeds, 100 iterations. The JAX row
 is :func:`loopid.algorithms.loop.run_learning` on a compiled cell (warmed up on 2 iterations
 first, so the time excludes compilation; it includes drawing the test noise). The reference is

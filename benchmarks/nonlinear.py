@@ -1,4 +1,4 @@
-"""Planning on a learned nonlinear model against planning on the true model (issue 19).
+"""Planning on a learned nonlinear model against planning on the true model.
 
 (a) One iLQR plan (:func:`loopid.control.plan`, compiled: ``jax.jit`` of the plan with the
     model's parameters as its argument, the way :func:`loopid.algorithms.planning_agent.ilqr_plan`
@@ -44,7 +44,7 @@
     second reference: what one MPC trajectory step costs against one gains step.
 
 The reference of every ratio is the true-model row of the same system, measured in the same run.
-Goal (issue 19): learned / true <= 2.
+Goal: learned / true <= 2.
 
     .venv/bin/python benchmarks/nonlinear.py [--quick]
 """

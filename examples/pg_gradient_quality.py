@@ -1,4 +1,4 @@
-"""How good is the policy-gradient baseline's gradient estimate on hover? (issue 5, "Limits" in
+"""How good is the policy-gradient baseline's gradient estimate on hover? ("Limits" in
 :mod:`loopid.algorithms.policy_gradient`).
 
 Compares, at π_1 (θ = 0, the baseline's start), three directions with the exact gradient of the

@@ -23,6 +23,7 @@ import jax
 jax.config.update("jax_enable_x64", True)
 
 try:
+    #: The installed version of loopid (``0.0.0+unknown`` in a source tree without an install).
     __version__ = version("loopid")
 except PackageNotFoundError:  # running from a source tree without an install
     __version__ = "0.0.0+unknown"

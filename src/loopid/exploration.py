@@ -1,4 +1,4 @@
-"""Exploration distributions ν over state-action pairs (SPEC §4.4; paper section 6).
+"""Exploration distributions ν over state-action pairs (paper section 6): ν_t, ν_e, ν_en.
 
 Each sampler is a pure function ``sample(key, m) -> Transitions`` of ``m`` transitions: a pair
 ``(s, a) ~ ν`` is drawn and the real system is queried there (its generative model,
@@ -13,7 +13,7 @@ Each sampler is a pure function ``sample(key, m) -> Transitions`` of ``m`` trans
 - ``ν_en`` (:func:`nu_expert`, ``action_std = 0.01``): the same, with ``N(0, 0.0001 I)`` added
   to the expert's actions while it flies.
 
-With a delay the plant's readings decide what a ν sample is (SPEC §5.1): under ``delay_mode =
+With a delay the plant's readings decide what a ν sample is: under ``delay_mode =
 "fifo"`` each pair is queried with the pending FIFO filled with the action (``nu_pending =
 "hold"``) or empty (``"zero"``), or, for ν_e/ν_en with ``"rollout"``, not queried at all: the
 sample is the transition the expert's own delayed rollout recorded, ``(x_t, commanded Δu_t,

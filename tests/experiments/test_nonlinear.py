@@ -68,7 +68,7 @@ def test_dagger_swings_the_pendulum_up_with_features_and_the_linear_model_cannot
 
     The linear model with LQR, the same data and ν, swings up on none of 3 seeds (measured:
     every seed's final policy stays near the bottom, costs above 1,000). Batch (ν's data only) is
-    in the README's figure: its model fits ν's data but not its own policy's, and it fails."""
+    in the guide's figure: its model fits ν's data but not its own policy's, and it fails."""
     assert 280 < reference < 320
     s = swingup(seeds=16, test_trajectories=1)
     trace = gym.run("dagger", s)

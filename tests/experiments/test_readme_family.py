@@ -1,4 +1,4 @@
-"""The README's "Add your own system" example runs, and does what the README says it does.
+"""The "Add a new kind of system" guide's example runs, and does what the guide says it does.
 
 The first ``python`` block under that heading is executed as a script (``__name__ ==
 "__main__"``, in a temporary directory), exactly as a reader would run ``python mylinear.py``: it
@@ -24,16 +24,16 @@ from loopid.experiments.execute import run_cells
 from loopid.experiments.families import FAMILIES, family_named, family_of
 from loopid.experiments.results import read_table
 
-pytestmark = pytest.mark.slow  # about 40 s on 2 cores, nearly all compiling the README's cell
+pytestmark = pytest.mark.slow  # about 40 s on 2 cores, nearly all compiling the guide's cell
 
-README = Path(__file__).resolve().parents[2] / "README.md"
-HEADING = "## Add your own system"
+GUIDE = Path(__file__).resolve().parents[2] / "docs" / "guides" / "new-system.md"
+HEADING = "# Add a new kind of system"
 
 
-def readme_block() -> str:
+def guide_block() -> str:
     """The first ```python block after the heading (and before the next ``## `` heading)."""
-    text = README.read_text(encoding="utf-8")
-    assert text.count(HEADING + "\n") == 1, f"README has no single {HEADING!r} section"
+    text = GUIDE.read_text(encoding="utf-8")
+    assert text.count(HEADING + "\n") == 1, f"the guide has no single {HEADING!r} section"
     section = text.split(HEADING + "\n", 1)[1]
     section = re.split(r"^## ", section, maxsplit=1, flags=re.MULTILINE)[0]
     match = re.search(r"^```python\n(.*?)^```$", section, flags=re.MULTILINE | re.DOTALL)
@@ -43,10 +43,10 @@ def readme_block() -> str:
 
 @pytest.fixture(scope="module")
 def example(tmp_path_factory):
-    """The README block run as a script in a fresh directory: ``(namespace, its directory)``.
+    """The guide's block run as a script in a fresh directory: ``(namespace, its directory)``.
     The family it registers is taken out of the registry afterwards."""
-    home = tmp_path_factory.mktemp("readme")
-    code = compile(readme_block(), str(README), "exec")
+    home = tmp_path_factory.mktemp("guide")
+    code = compile(guide_block(), str(GUIDE), "exec")
     namespace = {"__name__": "__main__"}
     before = dict(FAMILIES)
     cwd = Path.cwd()
@@ -127,7 +127,7 @@ def test_learners_reach_the_optimal_lqr_cost(example):
     the LQR policy of the true system. Both are tested on the same test noise (the loop's common
     random numbers: ``fold_in(key(seed), 2)``), so the ratio measures the policy alone.
 
-    Tolerance: measured on 8 seeds with the README's settings (10 iterations of 200 samples),
+    Tolerance: measured on 8 seeds with the guide's settings (10 iterations of 200 samples),
     the final cost is within -0.2% .. +1.6% of the optimum for DAgger and -0.3% .. +1.3% for
     Batch (a learned policy can land a hair below: the stationary LQR gain is not exactly optimal
     over a 50-step horizon). 5% is three times the worst seed, while the first policy (the
@@ -138,7 +138,7 @@ def test_learners_reach_the_optimal_lqr_cost(example):
     config = ns["LinearConfig"]()
     plant = ns["setup"](config)[0]
     A, B = np.asarray(config.A), np.asarray(config.B)
-    Q, R = np.eye(A.shape[0]), 0.1 * np.eye(B.shape[1])  # the README task's cost
+    Q, R = np.eye(A.shape[0]), 0.1 * np.eye(B.shape[1])  # the guide task's cost
     P = scipy.linalg.solve_discrete_are(A, B, Q, R)
     K = np.linalg.solve(R + B.T @ P @ B, B.T @ P @ A)
     K = np.concatenate([K, np.zeros((B.shape[1], 1))], axis=1)  # [x; 1]: no feedforward at 0

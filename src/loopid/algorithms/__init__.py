@@ -1,1 +1,22 @@
-"""loopid.algorithms."""
+"""The loop and its agents: Algorithm 1 for every seed at once, the plant it runs on, the agents
+it trains and the baselines it is compared with.
+
+Public means listed here and documented: every submodule below is part of the API.
+"""
+
+__all__ = [
+    "closed_loop",
+    "collect",
+    "contracts",
+    "expert",
+    "host_loop",
+    "keys",
+    "loop",
+    "mdp_agent",
+    "methods",
+    "model_based",
+    "mpc_plant",
+    "planning_agent",
+    "plant",
+    "policy_gradient",
+]

@@ -1,4 +1,4 @@
-"""Drawing the policy half of each iteration's data (SPEC §1), with fixed shapes.
+"""Drawing the policy half of each iteration's data (Algorithm 1), with fixed shapes.
 
 Two ways to draw ``count`` transitions from running the current policy π from μ:
 

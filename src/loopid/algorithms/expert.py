@@ -1,4 +1,4 @@
-"""The linearised expert L (SPEC §2): optimal control on the *true* simulator.
+"""The linearised expert L: optimal control on the *true* simulator.
 
 - Time-invariant tasks (hover): the true model linearised about the hover target in error
   coordinates (:func:`loopid.systems.helicopter.linearize`), steady-state LQR for the affine

@@ -1,12 +1,12 @@
 """The model-based agent of the helicopter experiments: linear offset model + learner + LQR.
 
-The model class is :class:`loopid.models.LinearOffsetModel` (SPEC §4.2) in error coordinates,
+The model class is :class:`loopid.models.LinearOffsetModel` in error coordinates,
 features ``z = [Δx; Δu]`` and residual targets ``y = Δx' − (AΔx + BΔu)``; any online learner
-(:mod:`loopid.learners`) fits ``W = [A' B']ᵀ``. The optimal-control solver (SPEC §4.3):
+(:mod:`loopid.learners`) fits ``W = [A' B']ᵀ``. The optimal-control solver:
 
 - time-invariant model: steady-state LQR for the affine model (:func:`loopid.control.dlqr_affine`);
   when it does not converge (the initial hover model is not stabilisable) the policy is the first
-  gain of the finite-horizon LQR over the task horizon (SPEC §4.4), and ``converged`` is False.
+  gain of the finite-horizon LQR over the task horizon, and ``converged`` is False.
 - time-varying model: finite-horizon time-varying LQR (:func:`loopid.control.tvlqr`) with the
   task's Q at every step and as the terminal cost.
 

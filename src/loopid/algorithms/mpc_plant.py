@@ -1,4 +1,4 @@
-"""Model-predictive control flown on a JAX plant: the loop's MPC (issue 19), one compiled
+"""Model-predictive control flown on a JAX plant: the loop's MPC, one compiled
 program over seeds.
 
 :func:`mpc_plant` turns a :class:`~loopid.algorithms.plant.Plant`, whose policies are gains

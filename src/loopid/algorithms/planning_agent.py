@@ -1,7 +1,7 @@
 """The model-based agent for any model class: a learned model, its online learner and a planner.
 
-Algorithm 1 of Ross & Bagnell (2012) needs three things of an agent (SPEC §1; issue 19): a model
-class with a no-regret online learner, and an optimal-control solver. :func:`planning_agent`
+Algorithm 1 of Ross & Bagnell (2012) needs three things of an agent: a model class, a no-regret
+online learner for it, and an optimal-control solver. :func:`planning_agent`
 makes an :class:`~loopid.algorithms.loop.Agent` of any :class:`ModelClass` and any planner, so
 the JAX loop and the host loop run nonlinear models unchanged:
 

@@ -5,10 +5,10 @@ pure operations that Algorithm 1 of Ross & Bagnell (2012) needs:
 
 - ``rollout(K, key, action_std)``: run the affine policy ``u_t = −K_τ Δx_t (+ ε_t)`` from the start
   state μ for ``horizon`` steps, restarting from μ whenever a training trajectory leaves the safe
-  region ``‖[Δx_{:−1}; Δu]‖₂ > stop_norm`` (SPEC §4.4) or the task horizon ends. Returns every
+  region ``‖[Δx_{:−1}; Δu]‖₂ > stop_norm`` (the safe region) or the task horizon ends. Returns every
   step as a transition with a validity mask (fixed shape ``[horizon]``).
 - ``query(x, du, t, key)``: the generative model: set the system to raw state ``x`` at target time
-  ``t``, apply ``du``, observe ``x'`` (SPEC §3: with delay d the pending FIFO holds ``du`` for
+  ``t``, apply ``du``, observe ``x'`` (with delay d the pending FIFO holds ``du`` for
   ``nu_pending="hold"`` (and ``"rollout"``, whose ν_e/ν_en samples skip the query), zeros for
   ``"zero"``; under ``delay_mode="latency"`` a plain one-step query, ``x' = f(x, du)``).
 - ``eval_noise(key, n_test)``: the process noise ``[n_test, horizon, n_noise]`` of ``n_test`` test
@@ -18,13 +18,13 @@ pure operations that Algorithm 1 of Ross & Bagnell (2012) needs:
   one that reaches the cap or a non-finite state counts as diverged. No NaN leaves here.
   ``eval_seeds(K, noise)`` does the same for every seed at once.
 
-Speed: the test trajectories are most of the loop's arithmetic (SPEC §4.4: 100 per seed and
-iteration). ``eval_seeds`` runs all of them (every seed's) as one column batch, ``x [n_x,
-S·n_test]``, so each state component is a contiguous vector over the batch and one ``lax.scan``
-step advances every trajectory; on a CPU this is 2.8x faster (``benchmarks/sim.py``) than
-``vmap`` of one trajectory (whose batch axis ends up leading, with the n_x state components as
-the short minor axis). ``eval_one`` stays the plain one-trajectory form: the mixture policy's path
-and the reference ``eval_seeds`` is tested against.
+Speed: the test trajectories are most of the loop's arithmetic (100 per seed and iteration in
+the paper's protocol). ``eval_seeds`` runs all of them (every seed's) as one column batch,
+``x [n_x, S·n_test]``, so each state component is a contiguous vector over the batch and one
+``lax.scan`` step advances every trajectory; on a CPU this is 2.8x faster
+(``benchmarks/sim.py``) than ``vmap`` of one trajectory (whose batch axis ends up leading, with
+the n_x state components as the short minor axis). ``eval_one`` stays the plain one-trajectory
+form: the mixture policy's path and the reference ``eval_seeds`` is tested against.
 
 Policies are time-varying affine gains in error coordinates, ``K: [horizon, m, n]``: the error
 state ends with the constant 1, so the last column of ``K_t`` is the feedforward term.
@@ -213,7 +213,7 @@ def make_plant(
       dynamics: the system's step, error coordinates and noise.
       stop_norm: training trajectories restart from μ when ``‖[Δx_{:−1}; Δu]‖₂ > stop_norm``.
       nu_pending: delayed-query convention for ν samples under ``fifo``: ``"hold"``, ``"zero"``
-        or ``"rollout"`` (SPEC §3, §5.1; :data:`NU_PENDING`).
+        or ``"rollout"`` (:data:`NU_PENDING`).
       cost_cap: a test trajectory's total cost is capped here and then counts as diverged.
       delay_mode: ``"fifo"`` or ``"latency"`` (module docstring;
         :data:`~loopid.algorithms.closed_loop.DELAY_MODES`).
@@ -344,7 +344,7 @@ def make_plant(
     )  # fmt: skip
 
 
-#: Delayed ν queries under ``fifo`` (SPEC §3, §5.1): the pending FIFO filled with the queried
+#: Delayed ν queries under ``fifo``: the pending FIFO filled with the queried
 #: action, left empty (zeros), or no query for ν_e/ν_en (the expert's own recorded transitions).
 NU_PENDING = ("hold", "zero", "rollout")
 

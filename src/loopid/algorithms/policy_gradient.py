@@ -5,7 +5,7 @@ the gradient from sample cost with perturbed parameters").
 Parameters: a time-invariant gain offset ``θ [m, n]`` on a base gain ``K⁰`` (``K_t = K⁰_t + θ``,
 ``θ_1 = 0``), only on the *free* entries (:func:`pg_base`). On hover, ``K⁰`` is the trim-holding
 controller ``u_t = u* − θ φ(x_t)`` (gain 1 on the ``u_prev`` error, 0 on ``du_prev``), whose test
-trajectories at θ = 0 are exactly π_1's (from μ, π_1 never acts: SPEC §4.4, ~2.5e6), and θ acts
+trajectories at θ = 0 are exactly π_1's (from μ, π_1 never acts: ~2.5e6), and θ acts
 on the physical and constant coordinates (52 gains). Elsewhere ``K⁰`` is π_1's gain and all mn
 gains are free. Iteration n ≥ 2 spends at most the m transitions of the other methods, in
 ``R = P + 2`` rollouts of ``H`` steps (:func:`budget`) that all start at the test's start μ and
@@ -64,7 +64,7 @@ one iteration's P probes and its candidate fit, since a ring-buffer scatter of P
 repeats slots (which write wins is then undefined) and would drop probes of the current draw.
 (With the transitions reading on hover and funnel P + 1 ≤ d, so L = d as before.)
 
-Why (SPEC §2 asks for the *why*). Numbers from hover at π_1 (θ = 0), exact autodiff gradients of
+Why. Numbers from hover at π_1 (θ = 0), exact autodiff gradients of
 the test objective ``J_400`` (400 steps from μ) over 200 noise draws
 (``examples/pg_gradient_quality.py``), and scratch runs of 4-8 seeds with 50 test trajectories:
 

@@ -12,14 +12,14 @@ never NaN.
 - :func:`dlqr` / :func:`dlqr_affine` -> :class:`LQRSolution` (hover; the affine variant for
   error coordinates with a constant last entry)
 - :func:`tvlqr` -> :class:`TVLQRSolution` (funnel on a learned time-varying model; also the
-  fallback when ``dlqr`` does not converge, SPEC §4.4)
+  fallback when ``dlqr`` does not converge on a learned model)
 - :func:`ilqr` -> :class:`ILQRSolution` (the funnel expert on the true simulator)
 - :func:`plan` (iLQR on a learned model whose parameters are traced), :func:`as_gains` (its
   policy as the loop's gains ``K [T, m, n]``), :func:`mpc_rollout` / :class:`MPCController`
   (receding-horizon iLQR in JAX and for Gymnasium envs), :func:`replanner` (its re-planning step
   for controllers inside a compiled loop), :class:`Penalized`,
-  :func:`quadratic_cost`, :func:`action_penalty`: the planner of nonlinear models (issue 19;
-  :mod:`loopid.control.plan`, :mod:`loopid.control.mpc`)
+  :func:`quadratic_cost`, :func:`action_penalty`: the planner of nonlinear models
+  (:mod:`loopid.control.plan`, :mod:`loopid.control.mpc`)
 - :func:`rollout`, :func:`linear_rollout`, :func:`tracking_rollout` -> trajectories
 - :func:`value_iteration`, :func:`policy_iteration`, :func:`evaluate`, :func:`occupancy`: finite
   MDPs (batched), exact policy evaluation and discounted occupancy D_{μ,π}

@@ -25,9 +25,9 @@ stops: the last finite iterate is returned with ``converged = False``.
 
 Up to two Newton (Kleinman-Hewer) steps then refine P: the value of the gain K(P) by a
 Smith-doubling Lyapunov solve, kept only where it lowers the residual. They recover the digits the
-doubling loses when R is tiny (SPEC's R = dt·1e-6·I makes G = BR⁻¹Bᵀ ~ 1e7: residual 1e-9 → 1e-17
-on hover). A step is taken only while the relative residual exceeds 1e-14, so the usual case
-(doubling alone reaches ~1e-15) pays nothing for them.
+doubling loses when R is tiny (the helicopter's R = dt·1e-6·I makes G = BR⁻¹Bᵀ ~ 1e7: residual
+1e-9 → 1e-17 on hover). A step is taken only while the relative residual exceeds 1e-14, so the
+usual case (doubling alone reaches ~1e-15) pays nothing for them.
 
 ``converged`` is True only when the iteration met ``tol``, every number is finite, the relative
 Riccati residual is at most ``rtol_residual`` and the closed loop A - BK is Schur stable
@@ -148,7 +148,7 @@ def _sda(A: Array, G: Array, H: Array, max_iter: int, tol: float):
         W = eye + G @ H
         # W⁻¹[A G] as the explicit inverse times [A G] plus one step of iterative refinement:
         # on XLA CPU under vmap, LAPACK's batched getrs with 2n right-hand sides costs more than
-        # getri-by-solve + three products (issue 3), and the refinement step restores the
+        # getri-by-solve + three products (measured), and the refinement step restores the
         # accuracy of a backward-stable solve when W is ill-conditioned (tiny R: the inverse
         # alone loses 1e-2 relative in the hover P, which Newton cannot win back).
         rhs = jnp.concatenate([A, G], axis=-1)

@@ -81,7 +81,7 @@ def _backward(A, B, c, Q, q, R, r, M, Q_T, q_T, mu, *, regularized=True):
     A ``fori_loop`` reads step t by dynamic index and writes the results in place, rather than a
     ``lax.scan`` over the inputs: under ``jax.vmap`` scan moves the time axis of every input
     ahead of the batch axis (a transposed copy of A, Q, … per call), which cost about a third
-    of the time of ``tvlqr`` vmapped over problems (issue 3). The current P_{t+1}, p_{t+1} are
+    of the time of ``tvlqr`` vmapped over problems. The current P_{t+1}, p_{t+1} are
     carried as values rather than read back from the output arrays.
     """
     T, n, m = B.shape

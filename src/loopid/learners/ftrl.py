@@ -1,7 +1,7 @@
 r"""Follow-the-Regularised-Leader for least squares, kept as sufficient statistics.
 
 After n rows (x_i, y_i) in any batches, the model is the regularised fit on everything seen
-(paper section 4 and its hover footnote; SPEC §4.2)::
+(paper section 4 and its hover footnote)::
 
     W_n = argmin_W  (1/n) Σ_i ||y_i − Wᵀx_i||² + (λ/√n) ||W||²_F
         ⇔  (XᵀX/n + (λ/√n) I) W = XᵀY/n  ⇔  (ZZ + λ√n I) W = ZY,

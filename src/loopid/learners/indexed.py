@@ -6,7 +6,7 @@ and mask, an integer ``index`` [b]: the time step of each row. Step t's state is
 rows whose index equals t (and whose mask is on), all steps at once with fixed shapes, so
 
 - FTRL per step is an independent regularised fit per step, n counting that step's rows only
-  (the funnel's time-varying model, SPEC §4.2), and
+  (the funnel's time-varying model), and
 - OGD per step takes a gradient step only where the batch has rows for that step; a step with no
   rows keeps its weights and its step count.
 

@@ -8,7 +8,7 @@ L_t(W) = (1/b_t) Σ_j ||y_j − Wᵀx_j||² over its kept rows, with gradient
 
 starting from W = 0. With bounded gradients and a bounded feasible set its average regret
 against the best fixed W in hindsight is O(1/√N). Only W and t are kept: OGD forgets the data,
-which is the point of offering it next to FTRL (SPEC §1: "any no-regret learner").
+which is the point of offering it next to FTRL (the paper: "any no-regret learner").
 
 A batch whose rows are all masked is not a round: W and t stay as they are (so the indexed,
 time-varying form leaves a step without samples untouched).

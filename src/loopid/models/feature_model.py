@@ -1,4 +1,4 @@
-r"""Feature models: the linear offset model plus a fixed nonlinear feature map (issue 19).
+r"""Feature models: the linear offset model plus a fixed nonlinear feature map.
 
 In error coordinates Δx [n] (the last entry is the constant 1) and control changes Δu [m]::
 

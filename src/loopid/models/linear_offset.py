@@ -1,4 +1,4 @@
-r"""The linear offset model (paper section 6, SPEC §4.2): a nominal (A, B) plus learned offsets.
+r"""The linear offset model (paper section 6): a nominal (A, B) plus learned offsets.
 
 In error coordinates Δx [n] (the last entry is the constant 1, so the last column of A is an
 affine offset) and control changes Δu [m]::
@@ -171,7 +171,7 @@ def to_matrices(model: LinearOffsetModel, W) -> tuple[jax.Array, jax.Array]:
 
 def hover_nominal(n: int, m: int) -> LinearOffsetModel:
     """The paper's initial hover model: A = I [n, n]; B [n, m] adds Δu into the u_prev (rows 0..m-1)
-    and du_prev (rows m..2m-1) entries of the error state (SPEC §3 state layout)."""
+    and du_prev (rows m..2m-1) entries of the error state (the helicopter's state layout)."""
     for name, v in (("n", n), ("m", m)):
         if isinstance(v, bool) or not isinstance(v, int | np.integer) or v < 1:
             raise ValueError(f"{name} must be a positive integer, got {v!r}")
@@ -187,7 +187,7 @@ def time_varying_nominal(A, B, increments) -> LinearOffsetModel:
     """Time-varying nominal for a moving target: Δx_{t+1} = AΔx_t + BΔu_t − (x*_{t+1} ⊖ x*_t).
 
     With the constant 1 as the last error coordinate, the increment folds into the affine column:
-    A_t = A with A_t[:, -1] −= increments[t], B_t = B (SPEC §4.2).
+    A_t = A with A_t[:, -1] −= increments[t], B_t = B (the funnel's nominal model).
 
     Args:
       A: [n, n], B: [n, m], the hover linearisation in error coordinates.

@@ -1,4 +1,4 @@
-r"""A neural model: the nominal plus a small MLP, trained online with optax (Adam) (issue 19).
+r"""A neural model: the nominal plus a small MLP, trained online with optax (Adam).
 
 In error coordinates Δx [n] (the last entry is the constant 1) and control changes Δu [m]::
 

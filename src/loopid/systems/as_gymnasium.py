@@ -4,8 +4,9 @@ Ids (registered by ``import loopid``): ``loopid/HelicopterHover-v0`` (d = 0, noi
 ``loopid/HelicopterHoverDelay-v0`` (d = 1, noise std 1), ``loopid/HelicopterFunnel-v0``
 (d = 0, noise std 0.1); keyword arguments ``noise_std`` and ``delay`` override the defaults.
 
-Observation: the raw state x_t [21] (float64, SPEC order). Action: the commanded control change
-Δu_t [4] (float64). Reward: r_t = −(Δx_tᵀ Q Δx_t + Δu_tᵀ R Δu_t), Δx_t = to_error(x_t, x*_t),
+Observation: the raw state x_t [21] (float64, in the simulator's order). Action: the commanded
+control change Δu_t [4] (float64).
+Reward: r_t = −(Δx_tᵀ Q Δx_t + Δu_tᵀ R Δu_t), Δx_t = to_error(x_t, x*_t),
 the stage cost of the state *before* the action and of the commanded action. ``info
 ["next_state_cost"]`` = Δx_{t+1}ᵀ Q Δx_{t+1}; at the last step it is the terminal term, so an
 episode's total cost (``tasks.trajectory_cost``) is −Σ_t r_t + info["next_state_cost"] of the

@@ -57,7 +57,8 @@ __all__ = [
 
 # ----------------------------------------------------------------------------- costs
 class QuadraticCost(NamedTuple):
-    """``c(o, a) = (o − o*)ᵀ Q (o − o*) + (a − a_op)ᵀ R (a − a_op)`` (SPEC §4.1 on observations).
+    """``c(o, a) = (o − o*)ᵀ Q (o − o*) + (a − a_op)ᵀ R (a − a_op)``: a quadratic cost on
+    observations.
 
     ``target`` [n_obs], ``Q`` [n_obs, n_obs], ``R`` [m, m], ``a_op`` [m]. Callable on one pair
     (returns a float) or on batches ``obs [..., n_obs]``, ``action [..., m]`` (returns ``[...]``).

@@ -1,4 +1,5 @@
-r"""The funnel's nominal model: four readings of "the given hover model" (SPEC §4.2, §5.2).
+r"""The funnel's nominal model: four readings of "the given hover model", which the paper
+leaves open.
 
 The paper (Ross & Bagnell 2012, section 6, footnote) fits, per time step t of the funnel,
 
@@ -13,8 +14,8 @@ A, B = ``linearize(x_hover, x_hover)`` [21, 21], [21, 4] the true simulator line
 hover trim. Readings (``kind``), each a time-varying model A_t [T, 21, 21], B_t [T, 21, 4],
 T = len(target) − 1 (599 with pads, 399 without):
 
-- ``"spec"`` (SPEC §4.2, today's default): Δx_{t+1} = AΔx_t + BΔu_t − inc_t, i.e. A_t = A with
-  inc_t subtracted from its affine column, B_t = B
+- ``"spec"`` (the paper's formula; the ``literal`` preset): Δx_{t+1} = AΔx_t + BΔu_t − inc_t,
+  i.e. A_t = A with inc_t subtracted from its affine column, B_t = B
   (:func:`loopid.models.linear_offset.time_varying_nominal`).
 - ``"no-increment"`` (the public reproduction vvanirudh/AgnosticSysID, ``fit_model.py``, which
   centres each step on its target with no increment term): Δx_{t+1} = AΔx_t + BΔu_t; A_t = A,
@@ -49,14 +50,14 @@ T = len(target) − 1 (599 with pads, 399 without):
   and (A_t − I) has zero position columns); taking x*_t's leaves c_t no position entry. The
   velocity and rates stay at the trim's 0 ("the hover model", and a trim): the target's velocity
   and yaw rate enter through c_t (drag and rate damping are linear in them). The derivation is
-  the drift one with e = x ⊖ h_t and x*_{t+1} ⊖ h_t ≈ c_t + inc_t. SPEC §5.2 marks this reading
-  as inference; checked numerically on the expert's padded flight (velocity RMS, see
+  the drift one with e = x ⊖ h_t and x*_{t+1} ⊖ h_t ≈ c_t + inc_t. This reading rests on
+  inference, not on a source; checked numerically on the expert's padded flight (velocity RMS, see
   :func:`prediction_errors`): 0.0714 as defined; 0.0714 also with linearize(h_t, h_{t+1}) and
   the exact x*_{t+1} ⊖ h_{t+1} in place of c_t + inc_t; 0.0721 linearised at the target's
   velocity and rates instead; 0.375 without the (A_t − I)c_t term.
 
 :func:`prediction_errors` measures a nominal's one-step prediction error along the expert's
-flight (SPEC §5.2's figures).
+flight (the figures the readings are compared by).
 """
 
 from typing import NamedTuple
@@ -77,7 +78,7 @@ __all__ = [
     "prediction_errors",
 ]
 
-#: The readings of the funnel's nominal model (SPEC §5.2), today's first.
+#: The readings of the funnel's nominal model, the literal one first.
 FUNNEL_NOMINALS = ("spec", "no-increment", "drift", "heading")
 VELOCITY = helicopter.NED_DOT  # indices 8:11 of the error coordinates
 
@@ -158,7 +159,7 @@ def funnel_nominal(kind: str, task: Task) -> LinearOffsetModel:
 
 # ----------------------------------------------------------------------------- prediction errors
 class PredictionErrors(NamedTuple):
-    """One-step prediction errors of a nominal along the expert's flight (SPEC §5.2).
+    """One-step prediction errors of a nominal along the expert's flight.
 
     Every field is an RMS over time steps t (and seeds) and the three velocity entries (error
     coordinates 8:11, m/s) together, i.e. sqrt(mean over t, seed, entry of v²):
@@ -212,7 +213,7 @@ def prediction_errors(
     noise: bool = True,
     steps=None,
 ) -> PredictionErrors:
-    """One-step prediction error of a time-varying nominal along the expert's flight (SPEC §5.2).
+    """One-step prediction error of a time-varying nominal along the expert's flight.
 
     Flies the expert ``u_t = −K_t Δx_t`` (``K_expert`` [T, 4, 21]) from ``task.x0`` on the true
     simulator (:func:`loopid.systems.helicopter.step`) over the whole target, once per seed with
@@ -224,14 +225,16 @@ def prediction_errors(
     funnel.
 
     Measured (the iLQR expert; noise std 0.1 or none moves no figure by more than 0.001), as
-    spec / no-increment / drift / heading, true step; SPEC §5.2: 0.49 / 0.47 / 0.31 / 0.09, 0.18:
+    spec / no-increment / drift / heading, true step; an independent computation gave
+    0.49 / 0.47 / 0.31 / 0.09, 0.18:
 
     - padded funnel, all 599 steps: 0.445 / 0.454 / 0.251 / 0.071, 0.186;
     - padded funnel, the circles (``slice(100, 499)``): 0.495 / 0.438 / 0.307 / 0.087, 0.224;
     - ``pads=False`` (399 steps): 0.505 / 0.447 / 0.319 / 0.103, 0.239.
 
-    SPEC's true step of 0.18 is the raw velocity change x_{t+1} − x_t over the whole padded
-    flight (``error_step``, Δx_{t+1} − Δx_t, is 0.207 there: the target's two velocity jumps).
+    That computation's true step of 0.18 is the raw velocity change x_{t+1} − x_t over the whole
+    padded flight (``error_step``, Δx_{t+1} − Δx_t, is 0.207 there: the target's two velocity
+    jumps).
     """
     A = jnp.asarray(model.A, dtype=jnp.float64)
     B = jnp.asarray(model.B, dtype=jnp.float64)

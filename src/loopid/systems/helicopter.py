@@ -1,8 +1,8 @@
-"""Abbeel & Coates' 21-state helicopter (SPEC §3): dynamics, quaternions, targets, error coords.
+"""Abbeel & Coates' 21-state helicopter: dynamics, quaternions, targets, error coords.
 
 Pure JAX in float64; every function is jittable and vmappable over any batch (``jax.vmap``).
 
-State ``x`` [21] (SPEC order): ``u_prev`` [4] (aileron, elevator, rudder, collective applied in
+State ``x`` [21], in this order: ``u_prev`` [4] (aileron, elevator, rudder, collective applied in
 the last step), ``du_prev`` [4] (the change applied in the last step), ``ned_dot`` [3] (m/s,
 world North-East-Down), ``ned`` [3] (m, down positive), ``pqr`` [3] (rad/s, body rates; body x
 forward, y right, z down), ``q`` [4] (attitude, scalar last ``[x, y, z, w]``, body to world).
@@ -19,7 +19,8 @@ One explicit Euler step (dt = 0.05 s), every right-hand side evaluated at the ol
 
 with m = 5 kg, g = 9.81 m/s², I = 0.3 kg·m² about each axis, b = (−0.086, 0.015, −0.139),
 D = (−3.47, −3.06, −2.58), G = (13.20, −9.21, 14.84). No saturation, no gyroscopic term.
-The quaternion is never normalised or sign-flipped (SPEC "Quaternion sign").
+The quaternion is never normalised or sign-flipped, so q and the target stay continuous, and the
+error coordinates' round trip keeps the scalar part of conj(q*) ⊗ q positive.
 
 Error coordinates relative to a target x* (what models and controllers see), ``dx`` [21]:
 dx[0:17] = x[0:17] − x*[0:17]; dx[17:20] = vector part of conj(q*) ⊗ q; dx[20] = 1.
@@ -98,7 +99,8 @@ def quat_conj(q: jax.Array) -> jax.Array:
 
 
 def rotvec_to_quat(r: jax.Array) -> jax.Array:
-    """Unit quaternion [4, *B] of the rotation vector r [3, *B] (rad), SPEC §3 step 3.
+    """Unit quaternion [4, *B] of the rotation vector r [3, *B] (rad), for
+    the attitude update of :func:`step`.
 
     Vector part sin(|r|/2)·r/|r| (r/2 when |r| < 1e-4), scalar part sqrt(1 − |vec|²). The
     small-angle branch uses a safe norm inside ``jnp.where``, so gradients are finite at r = 0.
@@ -125,8 +127,8 @@ def quat_to_rotmat(q: jax.Array) -> jax.Array:
 
 # ----------------------------------------------------------------------------- dynamics
 def step(x: jax.Array, du: jax.Array, noise: jax.Array) -> jax.Array:
-    """One explicit Euler step (SPEC §3 steps 1-9): x [21, *B], du [4, *B], noise [6, *B] ->
-    x_next [21, *B] (trailing batch axes optional; see "quaternions" above).
+    """One explicit Euler step (written out in the module docstring): x [21, *B], du [4, *B],
+    noise [6, *B] -> x_next [21, *B] (trailing batch axes optional; see "quaternions" above).
 
     ``noise`` = (world force n_F [N], body torque n_τ [N·m]), already scaled by the task's std.
     """
@@ -205,7 +207,7 @@ def hover_target() -> jax.Array:
 
 
 def funnel_target(pads: bool = True) -> jax.Array:
-    """Nose-in funnel target (SPEC §3): [600, 21] with pads, [400, 21] without.
+    """Nose-in funnel target: [600, 21] with pads, [400, 21] without.
 
     Circle step k = 0..399: φ = 2πk/100, ω = 2π/5 rad/s; ned = (−5 cos φ, −5 sin φ, 0),
     ned_dot = (5ω sin φ, −5ω cos φ, 0), pqr = (0, 0, ω), q = [0, 0, sin(φ/2), cos(φ/2)] (yaw φ,

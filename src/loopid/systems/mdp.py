@@ -30,6 +30,7 @@ __all__ = [
     "cost_range",
     "gridworld",
     "horizon_factor",
+    "make_mdp",
     "random_mdp",
     "trap_mdp",
 ]

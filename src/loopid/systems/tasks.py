@@ -1,4 +1,4 @@
-"""Helicopter tasks (SPEC §3, §4.1): targets, start states, noise, delay and quadratic costs.
+"""Helicopter tasks: targets, start states, noise, delay and quadratic costs.
 
 A task fixes a target trajectory x*_0..x*_{T−1} [T, 21], the start state x_0 [21], the process
 noise std (the noise is std·N(0, I_6) per step, see ``helicopter.noise_sequence``), the actuation
@@ -21,11 +21,13 @@ import numpy as np
 
 from loopid.systems import helicopter
 
+#: The helicopter tasks, one per panel of the paper's Figure 2.
 TASK_NAMES = ("hover", "hover-delay", "funnel")
 #: The tasks that hold one hover target (time-invariant); every other task follows a trajectory.
 HOVER_TASKS = ("hover", "hover-delay")
-#: Weights over [u_prev ×4, du_prev ×4, ned_dot ×3, ned ×3, pqr ×3, q ×3, const ×1].
+#: Hover cost weights over [u_prev ×4, du_prev ×4, ned_dot ×3, ned ×3, pqr ×3, q ×3, const ×1].
 HOVER_WEIGHTS = (0.0, 1000.0, 1.0, 1.0, 1.0, 1.0, 0.0)
+#: Funnel cost weights, over the same blocks.
 FUNNEL_WEIGHTS = (0.0, 1000.0, 0.01, 10.0, 1.0, 10.0, 0.0)
 WEIGHT_BLOCKS = (4, 4, 3, 3, 3, 3, 1)
 ACTION_WEIGHT = 1e-6
