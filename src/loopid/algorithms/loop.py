@@ -3,7 +3,7 @@
 One *cell* is one method on one plant over N iterations for S seeds. Iteration ``n = 1`` solves
 the initial model; each iteration ``n = 2..N`` draws ``m`` transitions with the policy ``π_{n−1}``
 and the exploration distribution ν, gives them to the online learner, solves the new model for
-``π_n`` and tests ``π_n`` on the real noisy system (SPEC §1)::
+``π_n`` and tests ``π_n`` on the real noisy system (the paper's Algorithm 1)::
 
     slot i of the batch  ←  a draw from running π_{n−1}   with probability p_n,
                             a draw from ν                   otherwise,
@@ -13,8 +13,9 @@ expert) and ``1`` afterwards (:mod:`loopid.algorithms.methods`). Both candidate 
 drawn (fixed shapes); the model's loss on each is recorded before the update, so every method
 reports how well its model predicts its own policy's data and ν's (the train/test mismatch).
 
-Speed: the iteration is a pure function of a fixed-shape carry, vmapped over seeds and jitted
-once; :func:`run_learning` calls it N − 1 times from Python (no retracing: the iteration number and
+Speed: the iteration is a pure function of a fixed-shape carry, vmapped over seeds (and, in a
+lane set, :func:`run_lanes`, over the methods' seeds) and jitted once; :func:`run_learning`
+calls it N − 1 times from Python (no retracing: the iteration number and
 ``p_n`` are traced arguments), which gives progress and early results per iteration.
 
 Randomness (:mod:`loopid.algorithms.keys`, every stream named there): seed ``s`` has key ``k =

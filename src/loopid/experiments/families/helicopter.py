@@ -1,4 +1,5 @@
-"""The helicopter family: the paper's Figure 2 (SPEC §3-§4) through the one pipeline.
+"""The helicopter family: the paper's Figure 2 (its hover and funnel tasks and nine methods)
+through the one pipeline.
 
 Config: :class:`loopid.experiments.scenarios.Scenario` (the packaged panels ``hover``,
 ``hover-delay`` and ``funnel``, every protocol setting a field). Methods: the paper's nine,
@@ -8,8 +9,10 @@ For a scenario this module builds the plant (the JAX helicopter under the task:
 :func:`helicopter_plant`), the linearised expert L, the initial model (:func:`nominal_model`),
 the model-based agent (linear offset model, FTRL, LQR) and the exploration distributions, then
 runs a method on all seeds at once (:mod:`loopid.algorithms.loop`). Figure: the paper's Figure 2
-(:mod:`loopid.experiments.plots`); report: the final costs with each panel's readings of
-SPEC §5, and the paper's five findings (:mod:`loopid.experiments.findings`).
+(:mod:`loopid.experiments.plots`); report: the final costs with each panel's readings of the
+details the paper leaves open (:mod:`loopid.experiments.readings`), and the paper's five
+findings (:mod:`loopid.experiments.findings`). The learning methods can run as one lane set
+(:func:`run_lanes`, the default on an accelerator).
 
 Caching: the setup, the agent and the compiled cell (with its test-noise program) are kept in
 bounded caches keyed on :func:`program_key` (the scenario itself with the fields that cannot change
