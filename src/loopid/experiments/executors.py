@@ -192,21 +192,48 @@ def _pool_cell(cell: CellFunction, index: int, s, method: str, seeds):
     """One cell in a worker; progress goes back to the parent as ``(index, n, row)``, with
     ``n = 0`` (no row) when the cell starts and ``n = -1`` (no row) when it has returned, so
     the parent waits for nothing more of it (a task may return before its last iteration: a
-    memory check that sends it back, :class:`loopid.experiments.execute.Oversized`)."""
-    import jax
-    import numpy as np
+    memory check that sends it back, :class:`loopid.experiments.execute.Oversized`).
 
+    The rows are copied to NumPy and sent by a thread of the worker, in order, so the cell's
+    loop dispatches its next iteration without waiting for the last one's numbers (on an
+    accelerator, a copy to the host waits for the device)."""
     messages = _WORKER.get("messages")
     if messages is None:
         return cell(s, method, seeds)
-
-    def progress(n, row):
-        messages.put((index, n, jax.tree_util.tree_map(np.asarray, row)))
-
+    rows = _RowSender(messages, index)
     messages.put((index, 0, None))  # started: the parent shows its bar from now on
-    result = cell(s, method, seeds, progress=progress)
+    try:
+        result = cell(s, method, seeds, progress=rows.put)
+    finally:
+        rows.close()  # every row of this cell is sent
     messages.put((index, -1, None))  # returned: after every progress message of this cell
     return result
+
+
+class _RowSender:
+    """A thread that sends ``(index, n, row)`` to ``messages`` in the order ``put`` was called,
+    each row's leaves copied to NumPy (:func:`_pool_cell`)."""
+
+    def __init__(self, messages, index: int):
+        self.messages, self.index = messages, index
+        self.pending: queue.Queue = queue.Queue()
+        self.thread = threading.Thread(target=self._send, daemon=True)
+        self.thread.start()
+
+    def put(self, n: int, row) -> None:
+        self.pending.put((n, row))
+
+    def close(self) -> None:
+        self.pending.put(None)
+        self.thread.join()
+
+    def _send(self) -> None:
+        import jax
+        import numpy as np
+
+        while (item := self.pending.get()) is not None:
+            n, row = item
+            self.messages.put((self.index, n, jax.tree_util.tree_map(np.asarray, row)))
 
 
 def _run_pool(jobs, cell, on_job, workers) -> Iterator[tuple[Job, Any]]:
