@@ -142,7 +142,7 @@ def test_a_reloaded_mdp_policy_gives_the_recorded_exact_cost(tmp_path):
 
 @pytest.mark.slow
 def test_a_reloaded_gym_controller_gives_the_recorded_costs_exactly(tmp_path):
-    from loopid.algorithms.host_loop import test_episodes
+    from loopid.algorithms.gym_loop import test_episodes
     from loopid.cli import scenario_from_options
 
     example = __import__("pathlib").Path(__file__).resolve().parents[2] / "examples"

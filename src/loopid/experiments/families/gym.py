@@ -28,7 +28,7 @@ The common options (``--seeds``, ``--iterations``, ``--samples``, ``--test-traje
 one line naming the value, before anything is written (:func:`check` builds the env once).
 
 Methods: ``dagger`` (p_n = ``dagger_fraction``), ``batch`` (p_n = 0), ``abbeel`` (ν's data at
-n = 2, then the policy's), run by :func:`loopid.algorithms.host_loop.run_learning_host`. Figure:
+n = 2, then the policy's), run by :func:`loopid.algorithms.gym_loop.run_learning_host`. Figure:
 mean test cost against samples, ± one standard error, per method; report: the final costs.
 """
 
@@ -42,11 +42,11 @@ import jax
 import numpy as np
 import pyarrow as pa
 
-from loopid.algorithms.host_loop import (
+from loopid.algorithms.gym_loop import (
     EVALUATE,
     Exploration,
+    gym_nominal_model,
     make_host_cell,
-    nominal_model,
     run_learning_host,
     test_episodes,
 )
@@ -67,7 +67,12 @@ from loopid.experiments.config import (
 from loopid.experiments.families.base import Family, Progress
 from loopid.experiments.report import final_cost_sections
 from loopid.models.linear_offset import LinearOffsetModel
-from loopid.systems.from_gymnasium import CallablePolicy, GymSystem, OpenLoopPolicy, quadratic_cost
+from loopid.systems.from_gymnasium import (
+    CallablePolicy,
+    GymSystem,
+    OpenLoopPolicy,
+    observation_cost,
+)
 
 METHODS = ("dagger", "batch", "abbeel")
 #: The helicopter method whose p_n schedule each gym method follows.
@@ -342,7 +347,7 @@ def _cost(s: GymScenario, shape: Shape):
                 f"[cost] {name} must be {size}x{size} or {size} diagonal entries "
                 f"({s.env_id} has {size} {what}), got shape {M.shape}"
             )
-    return _checked("cost", quadratic_cost, np.asarray(shape.target), thaw(s.Q), thaw(s.R),
+    return _checked("cost", observation_cost, np.asarray(shape.target), thaw(s.Q), thaw(s.R),
                     np.asarray(shape.a_op))  # fmt: skip
 
 
@@ -363,7 +368,7 @@ class Learner(NamedTuple):
 def _learner(s: GymScenario, shape: Shape) -> Learner:
     """The agent and its compiled host cell (kept: every method of a run shares them)."""
     cost = _cost(s, shape)
-    model = _checked("model", nominal_model, shape, thaw(s.A), thaw(s.B),
+    model = _checked("model", gym_nominal_model, shape, thaw(s.A), thaw(s.B),
                      time_varying=s.time_varying)  # fmt: skip
     if model_planner.is_paper_agent(s):
         Q, R = cost.augmented()  # sized to the system by _cost
@@ -605,7 +610,7 @@ def trajectories(run_dir, configs, path) -> None:
     matplotlib.use("Agg", force=True)
     import matplotlib.pyplot as plt
 
-    from loopid.algorithms.host_loop import slot_seeds
+    from loopid.algorithms.gym_loop import slot_seeds
     from loopid.algorithms.keys import HOST_TEST
     from loopid.experiments import artifacts
     from loopid.experiments.results import write_atomic_bytes
@@ -702,7 +707,7 @@ def shared(s: GymScenario, method: str) -> dict:
         shape = _shape(system)
     finally:
         system.close()
-    nominal = _checked("model", nominal_model, shape, thaw(s.A), thaw(s.B),
+    nominal = _checked("model", gym_nominal_model, shape, thaw(s.A), thaw(s.B),
                        time_varying=s.time_varying)  # fmt: skip
     return {"A": np.asarray(nominal.A), "B": np.asarray(nominal.B)}
 

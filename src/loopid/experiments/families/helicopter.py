@@ -27,6 +27,8 @@ import numpy as np
 
 from loopid.algorithms import methods as M
 from loopid.algorithms.expert import expert_gains
+from loopid.algorithms.helicopter_plant import helicopter_nominal_model as nominal_model
+from loopid.algorithms.helicopter_plant import helicopter_plant
 from loopid.algorithms.keys import TEST, stream_key
 from loopid.algorithms.loop import (
     EVALUATE,
@@ -40,7 +42,7 @@ from loopid.algorithms.loop import (
     run_learning,
     seed_keys,
 )
-from loopid.algorithms.plant import Plant, make_plant
+from loopid.algorithms.plant import Plant
 from loopid.algorithms.policy_gradient import run_policy_gradient
 from loopid.experiments import model_planner
 from loopid.experiments.config import read_flat_file
@@ -49,30 +51,9 @@ from loopid.experiments.findings import findings_section
 from loopid.experiments.report import final_cost_sections
 from loopid.experiments.scenarios import FIELDS, SCENARIOS, Scenario, readings_line, scenario
 from loopid.exploration import NU_KINDS, make_nu
-from loopid.models.linear_offset import LinearOffsetModel, hover_nominal
+from loopid.models.linear_offset import LinearOffsetModel
 from loopid.systems import helicopter
-from loopid.systems.funnel_nominal import funnel_nominal
-from loopid.systems.tasks import Task, is_hover, make_task
-
-
-def helicopter_plant(task: Task, **options) -> Plant:
-    """The helicopter of SPEC §3 under ``task`` as the loop's plant (``options``: those of
-    :func:`loopid.algorithms.plant.make_plant`)."""
-    return make_plant(task, helicopter.DYNAMICS, **options)
-
-
-def nominal_model(plant: Plant, funnel: str = "spec") -> LinearOffsetModel:
-    """The initial model every method starts from (SPEC §4.2).
-
-    Hover tasks: A = I, B adds Δu into u_prev and du_prev (the paper's hover model). The funnel:
-    the nominal of the reading ``funnel`` (SPEC §5.2,
-    :func:`loopid.systems.funnel_nominal.funnel_nominal`; ``spec``: the true simulator
-    linearised about hover trim, the same at every step, plus the target's own motion
-    ``−(x*_{t+1} ⊖ x*_t)``).
-    """
-    if is_hover(plant.task):
-        return hover_nominal(helicopter.N_STATE, helicopter.N_ACTION)
-    return funnel_nominal(funnel, plant.task)
+from loopid.systems.tasks import is_hover, make_task
 
 
 class Setup(NamedTuple):
