@@ -12,6 +12,7 @@ RENAMED = [
     ("loopid.systems", "quadratic_cost", "observation_cost"),
     ("loopid.algorithms.host_loop", "run_learning_host", "run_learning_host"),
     ("loopid.algorithms.host_loop", "nominal_model", "gym_nominal_model"),
+    ("loopid.experiments.families.gym", "Learner", "CompiledAgent"),
 ]
 NEW_HOME = {"loopid.algorithms.host_loop": "loopid.algorithms.gym_loop"}
 
