@@ -13,8 +13,13 @@ RENAMED = [
     ("loopid.algorithms.host_loop", "run_learning_host", "run_learning_host"),
     ("loopid.algorithms.host_loop", "nominal_model", "gym_nominal_model"),
     ("loopid.experiments.families.gym", "Learner", "CompiledAgent"),
+    ("loopid.experiments.study", "SPEC_PREDICTION", "INDEPENDENT_PREDICTION"),
+    ("loopid.experiments.study", "study_text", "study_text"),
 ]
-NEW_HOME = {"loopid.algorithms.host_loop": "loopid.algorithms.gym_loop"}
+NEW_HOME = {
+    "loopid.algorithms.host_loop": "loopid.algorithms.gym_loop",
+    "loopid.experiments.study": "loopid.experiments.study_report",
+}
 
 
 @pytest.mark.parametrize(("module", "old", "new"), RENAMED)
