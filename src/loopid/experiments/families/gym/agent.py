@@ -23,7 +23,7 @@ import numpy as np
 from loopid.algorithms.gym_loop import gym_nominal_model, make_host_cell
 from loopid.experiments import model_planner
 from loopid.experiments.families.gym.env import EnvShape
-from loopid.experiments.families.gym.scenario import GymScenario, plain_values
+from loopid.experiments.families.gym.scenario import GymScenario
 from loopid.models.linear_offset import LinearOffsetModel
 from loopid.systems.from_gymnasium import ObservationCost, observation_cost
 
@@ -50,8 +50,8 @@ def checked(what: str, f, *args, **kwargs):
 
 def design_cost(v: dict, shape: EnvShape) -> ObservationCost:
     """The ``[cost]`` table's quadratic on the observed entries and the actions (what the
-    controller is designed for), from a scenario's :func:`plain_values` ``v``; ValueError when
-    ``Q`` or ``R`` does not fit the env."""
+    controller is designed for), from a scenario's plain values ``v``
+    (:attr:`~.scenario.GymScenario.plain`); ValueError when ``Q`` or ``R`` does not fit."""
     sizes = (("Q", shape.n_obs, "observed entries"), ("R", shape.m, "actions"))
     for name, size, what in sizes:
         M = np.asarray(v[name], dtype=np.float64)
@@ -66,7 +66,7 @@ def design_cost(v: dict, shape: EnvShape) -> ObservationCost:
 
 def nominal(v: dict, shape: EnvShape) -> LinearOffsetModel:
     """The ``[model]`` table's nominal ``A``, ``B`` in the env's coordinates (what every seed's
-    learned offsets add to), from a scenario's :func:`plain_values` ``v``."""
+    learned offsets add to), from a scenario's :attr:`~.scenario.GymScenario.plain` ``v``."""
     return checked("model", gym_nominal_model, shape, v["A"], v["B"],
                    time_varying=v["time_varying"])  # fmt: skip
 
@@ -89,7 +89,7 @@ class CompiledAgent(NamedTuple):
 def compiled_agent(s: GymScenario, shape: EnvShape) -> CompiledAgent:
     """The :class:`CompiledAgent` of ``s`` on an env of ``shape`` (kept: every method of a run
     shares it)."""
-    v = plain_values(s)
+    v = s.plain
     cost = design_cost(v, shape)
     model = nominal(v, shape)
     if model_planner.is_paper_agent(s):

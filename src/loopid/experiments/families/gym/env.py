@@ -15,7 +15,7 @@ from typing import NamedTuple
 import gymnasium
 import numpy as np
 
-from loopid.experiments.families.gym.scenario import GymScenario, plain_values
+from loopid.experiments.families.gym.scenario import GymScenario
 from loopid.systems.from_gymnasium import GymSystem
 
 
@@ -38,7 +38,7 @@ class EnvSpec(NamedTuple):
 
 def env_spec(s: GymScenario) -> EnvSpec:
     """The :class:`EnvSpec` of ``s``."""
-    v = plain_values(s)
+    v = s.plain
     return EnvSpec(
         v["env_id"], v["env_kwargs"], v["reset_options"], v["observe"], v["target"],
         v["action_op"], v["horizon"], v["num_envs"], v["vectorization"], v["stop_norm"],

@@ -23,13 +23,14 @@ it differs)::
                    list), test_trajectories, dagger_fraction
 
 A scenario is frozen and hashable (lists kept as tuples, tables as :class:`Table` s) so that
-the compiled agent can be cached on it; :func:`plain_values` gives every field back as a plain
-TOML value, the one place the experiment's code un-freezes them. Checks that need no env are
-made when a scenario is built (:func:`validate`); those that need its sizes, when its
-:class:`~loopid.experiments.families.gym.setup.Setup` is built.
+the compiled agent can be cached on it; :attr:`GymScenario.plain` gives every field back as a
+plain TOML value, the one place the experiment's code un-freezes them (once per scenario).
+Checks that need no env are made when a scenario is built (:func:`validate`); those that need
+its sizes, when its :class:`~loopid.experiments.families.gym.setup.Setup` is built.
 """
 
 from dataclasses import dataclass, fields
+from functools import cached_property
 from typing import Any
 
 import numpy as np
@@ -114,6 +115,14 @@ class GymScenario(model_planner.ModelPlanner):
             if isinstance(v, list | dict | tuple):
                 object.__setattr__(self, f.name, freeze(v))
         validate(self)
+
+    @cached_property
+    def plain(self) -> dict[str, Any]:
+        """Every field as a plain TOML value (tuples back to lists, tables to dicts, ``None``
+        kept): what the env, the cost, the model and ν are built from. Computed once per
+        scenario, in one call of :func:`~loopid.experiments.config.thaw`; read it, do not
+        change it (it is not part of the scenario's value: equality and hashing ignore it)."""
+        return thaw(Table((f.name, getattr(self, f.name)) for f in fields(self)))
 
     def replace(self, **changes) -> "GymScenario":
         """A copy with ``changes``; unknown fields and bad values raise ``ValueError``."""
@@ -254,9 +263,3 @@ def build(name: str, changes: dict) -> GymScenario:
     if unknown:
         raise ValueError(f"unknown gym scenario field(s): {', '.join(unknown)}")
     return GymScenario(**{"name": name, **changes})
-
-
-def plain_values(s: GymScenario) -> dict[str, Any]:
-    """Every field of ``s`` as a plain TOML value (tuples back to lists, tables to dicts,
-    ``None`` kept): what the env, the cost, the model and ν are built from."""
-    return {f.name: thaw(getattr(s, f.name)) for f in fields(s)}

@@ -31,7 +31,7 @@ from loopid.experiments.families.gym.agent import (
     nominal,
 )
 from loopid.experiments.families.gym.env import EnvShape, env_shape, opened_system
-from loopid.experiments.families.gym.scenario import FRACTIONS, METHODS, GymScenario, plain_values
+from loopid.experiments.families.gym.scenario import FRACTIONS, METHODS, GymScenario
 from loopid.systems.from_gymnasium import CallablePolicy, GymSystem, OpenLoopPolicy
 
 
@@ -40,7 +40,7 @@ class Setup(NamedTuple):
 
     Attributes:
       scenario: the :class:`GymScenario`; values: its fields as plain values
-        (:func:`~.scenario.plain_values`).
+        (:attr:`~.scenario.GymScenario.plain`).
       system: the open env (:class:`~loopid.systems.from_gymnasium.GymSystem`), the loop's plant.
       shape: its sizes and coordinates (:class:`~.env.EnvShape`).
       compiled: the agent, its compiled host cell and controller (:class:`~.agent.CompiledAgent`).
@@ -85,7 +85,7 @@ def gym_setup(s: GymScenario) -> Iterator[Setup]:
     """The :class:`Setup` of ``s``; its env is closed when the ``with`` block ends."""
     with opened_system(s) as system:
         try:
-            v = plain_values(s)
+            v = s.plain
             shape = env_shape(system)
             parts = compiled_agent(s, shape), _exploration(v, system), _test_cost(v, shape)
         except (ValueError, TypeError) as err:
