@@ -24,9 +24,9 @@ import scipy.linalg
 import loopid  # noqa: F401  (float64)
 from loopid.algorithms import methods as M
 from loopid.algorithms.expert import expert_gains
+from loopid.algorithms.helicopter_plant import helicopter_nominal_model, helicopter_plant
 from loopid.algorithms.loop import make_cell, run_learning
 from loopid.algorithms.model_based import linear_agent
-from loopid.experiments.families.helicopter import helicopter_plant, nominal_model
 from loopid.experiments.scenarios import scenario
 from loopid.exploration import make_nu
 from loopid.learners import ftrl_least_squares
@@ -49,7 +49,11 @@ def jax_cell():
     task = make_task(S.task)
     plant = helicopter_plant(task, stop_norm=S.stop_norm, nu_pending=S.nu_pending)
     agent = linear_agent(
-        nominal_model(plant), ftrl_least_squares(S.ftrl_lambda), task.Q, task.R, plant.horizon
+        helicopter_nominal_model(plant),
+        ftrl_least_squares(S.ftrl_lambda),
+        task.Q,
+        task.R,
+        plant.horizon,
     )
     nu = make_nu("t", plant, expert_gains(task))
     cell = make_cell(plant, agent, nu, samples=S.samples, iterations=S.iterations,
@@ -78,7 +82,7 @@ class NumpyCell:
         self.x_star = np.asarray(h.hover_target())
         self.Q, self.R = np.asarray(task.Q), np.asarray(task.R)
         self.d = task.delay
-        nom = nominal_model(helicopter_plant(task))
+        nom = helicopter_nominal_model(helicopter_plant(task))
         self.A0, self.B0 = np.asarray(nom.A), np.asarray(nom.B)
         self.qs_conj = np.concatenate([-self.x_star[17:20], self.x_star[20:]])[None]
 

@@ -17,7 +17,7 @@ import matplotlib
 import numpy as np
 
 from loopid import control
-from loopid.algorithms.host_loop import test_episodes
+from loopid.algorithms.gym_loop import test_episodes
 from loopid.experiments.families import gym
 from loopid.systems import pendulum
 

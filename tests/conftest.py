@@ -16,13 +16,18 @@ jax.config.update("jax_numpy_dtype_promotion", "strict")
 
 
 def tree_allclose(a, b, *, rtol=1e-10, atol=1e-12) -> bool:
-    """True when two pytrees have the same structure and all leaves are close."""
+    """True when two pytrees have the same structure, leaves of the same shapes and all leaves
+    close (``|x − y| <= atol + rtol |y|``; NaN equal to NaN). ``rtol = atol = 0``: bit for bit,
+    as ``numpy.testing.assert_array_equal``."""
     la, ta = jax.tree_util.tree_flatten(a)
     lb, tb = jax.tree_util.tree_flatten(b)
     if ta != tb:
         return False
-    pairs = zip(la, lb, strict=True)
-    return all(np.allclose(np.asarray(x), np.asarray(y), rtol=rtol, atol=atol) for x, y in pairs)
+    pairs = [(np.asarray(x), np.asarray(y)) for x, y in zip(la, lb, strict=True)]
+    return all(
+        x.shape == y.shape and np.allclose(x, y, rtol=rtol, atol=atol, equal_nan=True)
+        for x, y in pairs
+    )
 
 
 #: The test files that take longest (measured, most first): collected first, so that a parallel

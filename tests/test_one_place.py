@@ -61,8 +61,8 @@ def test_agents_are_assembled_in_one_place():
         places = _calls(constructor)
         assert {f for f, _ in places} <= {
             "experiments/model_planner.py",
-            "algorithms/host_loop.py",
+            "algorithms/gym_loop.py",
         }, (constructor, places)
         assert all(fn in ("make_agent", "gym_agent") for _, fn in places), (constructor, places)
-    for family in ("helicopter", "gym"):
-        assert f"experiments/families/{family}.py" in _files(_calls("make_agent")), family
+    for family in ("helicopter.py", "gym/agent.py"):
+        assert f"experiments/families/{family}" in _files(_calls("make_agent")), family

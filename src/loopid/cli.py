@@ -369,44 +369,21 @@ def study(
     """Every reading of the paper's open details, one factor at a time from the probable
     readings, and the literal preset: study.md, study.parquet and one figure per group of
     readings."""
-    from loopid.experiments.execute import check_cells, resolved_config, run_cells
     from loopid.experiments.executors import check_executor
-    from loopid.experiments.results import write_atomic
-    from loopid.experiments.rundir import RunDir
-    from loopid.experiments.scenarios import SCENARIOS
-    from loopid.experiments.study import (
-        funnel_prediction_lines,
-        share_cells,
-        study_cells,
-        study_table,
-        write_outputs,
-    )
+    from loopid.experiments.study import run_study
 
     t0 = time.perf_counter()
     check_executor(executor, ray_address)
     workers = _workers(executor, workers)
-    changes = _protocol_changes(quick, seeds)
-    base = {name: s.replace(**changes) for name, s in SCENARIOS.items()}
-    scenarios, methods = study_cells(base)
-    seed_list = check_cells(scenarios, methods, None)
-    if reproduce_dir is not None and not (reproduce_dir / "config.toml").is_file():
-        raise ValueError(f"--reproduce {str(reproduce_dir)!r} holds no config.toml")
     output = _Output(quiet)
-    RunDir(out).prepare(resolved_config(scenarios, methods, seed_list))
-    if reproduce_dir is not None:
-        shared = share_cells(out, reproduce_dir, scenarios, seed_list)
-        output.log(f"{len(shared)} cells shared with {reproduce_dir}")
     try:
-        table = run_cells(
-            out, scenarios, methods, executor_name=executor, ray_address=ray_address,
-            workers=workers, memory=memory, on_cell=output.on_cell, log=output.log,
+        readings = run_study(
+            out, _protocol_changes(quick, seeds), reproduce=reproduce_dir, executor=executor,
+            ray_address=ray_address, workers=workers, memory=memory, on_cell=output.on_cell,
+            log=output.log, started=t0,
         )  # fmt: skip
     finally:
         output.close()
-    readings = study_table(table, base)
-    write_atomic(readings, out / "study.parquet")
-    prediction = funnel_prediction_lines(base["funnel"])
-    write_outputs(out, readings, base, command_s=time.perf_counter() - t0, prediction=prediction)
     output.log(f"wrote study.parquet ({readings.num_rows} rows), study.md and figures to {out}/")
 
 

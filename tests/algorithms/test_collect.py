@@ -6,6 +6,8 @@
 - ``policy_samples`` always returns exactly ``count`` rows, in both modes, whatever the mask.
 """
 
+from types import SimpleNamespace
+
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -13,10 +15,11 @@ import pytest
 from scipy import stats
 
 from loopid.algorithms.collect import geometric_steps, policy_samples
+from loopid.algorithms.expert import expert_gains
+from loopid.algorithms.helicopter_plant import helicopter_plant
 from loopid.algorithms.plant import make_plant
-from loopid.experiments.families.helicopter import setup
-from loopid.experiments.scenarios import scenario
 from loopid.systems.linear import linear_dynamics, linear_task
+from loopid.systems.tasks import make_task
 
 
 def truncated_geometric_pmf(gamma: float, horizon: int) -> np.ndarray:
@@ -93,7 +96,10 @@ def test_geometric_mode_keeps_the_stopping_step(lin_plant):
 # ------------------------------------------------------------------ the helicopter's stop rule
 @pytest.fixture(scope="module")
 def heli():
-    st = setup(scenario("hover"))
+    task = make_task("hover")  # the hover panel's plant (stop_norm 5, cost cap 1e8)
+    st = SimpleNamespace(
+        plant=helicopter_plant(task, delay_mode="latency"), K_expert=expert_gains(task)
+    )
     rollout = jax.jit(st.plant.rollout)
     return st, rollout
 

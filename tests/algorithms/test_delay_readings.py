@@ -16,11 +16,11 @@ import numpy as np
 import pytest
 
 from loopid.algorithms.expert import expert_gains
+from loopid.algorithms.helicopter_plant import helicopter_plant
 from loopid.algorithms.loop import eval_noise, make_cell, seed_keys
 from loopid.algorithms.model_based import linear_agent
 from loopid.algorithms.plant import make_plant
 from loopid.control import dlqr_affine
-from loopid.experiments.families.helicopter import helicopter_plant
 from loopid.exploration import nu_expert, nu_trajectory
 from loopid.learners import ftrl_least_squares
 from loopid.models.linear_offset import LinearOffsetModel, to_matrices

@@ -1,7 +1,8 @@
 """MPC flown on the helicopter plant (:mod:`loopid.algorithms.mpc_plant`) against two references:
 the gains of its one plan flown by the gains plant, and :func:`loopid.control.mpc_rollout` on
 the simulator written in error coordinates; its training rollouts against its own test flight
-and the restart rule; and the loop's cell flying each seed's model."""
+and the restart rule; a seed's costs beside other seeds. The cell flying each seed's model
+through the helicopter family is tested in ``tests/experiments/test_family_helicopter_mpc.py``."""
 
 import jax
 import jax.numpy as jnp
@@ -10,12 +11,11 @@ import pytest
 
 from loopid import control
 from loopid.algorithms.expert import expert_gains
-from loopid.algorithms.loop import EVALUATE, eval_noise, seed_keys, trajectory_mean
+from loopid.algorithms.helicopter_plant import helicopter_plant
+from loopid.algorithms.loop import eval_noise, seed_keys
 from loopid.algorithms.mpc_plant import mpc_plant
 from loopid.algorithms.planning_agent import feature_model
 from loopid.algorithms.plant import flatten, quadratic_form
-from loopid.experiments.families import helicopter as family
-from loopid.experiments.scenarios import scenario
 from loopid.learners import ftrl_least_squares
 from loopid.models.feature_model import polynomial
 from loopid.models.linear_offset import hover_nominal
@@ -28,7 +28,7 @@ T = 40  # the hover task cut to 40 steps
 def short_hover(noise_std=None, stop_norm=5.0):
     task = make_task("hover", noise_std=noise_std)
     task = task._replace(target=task.target[: T + 1])
-    return family.helicopter_plant(task, stop_norm=stop_norm)
+    return helicopter_plant(task, stop_norm=stop_norm)
 
 
 @pytest.fixture(scope="module")
@@ -87,7 +87,7 @@ def test_replanning_matches_mpc_rollout_on_the_simulator_in_error_coordinates():
     ``Δx_TᵀQΔx_T``): the same plans at the same times from the same states."""
     task = make_task("funnel", noise_std=0.0, pads=False)
     task = task._replace(target=task.target[: T + 1])
-    plant = family.helicopter_plant(task)
+    plant = helicopter_plant(task)
     target = task.target
 
     def true(dx, du, t):
@@ -156,51 +156,3 @@ def test_a_seeds_mpc_costs_do_not_depend_on_the_seeds_beside_it(model):
     alone, among = run(params[:3], noise[:, :, :3])[0], run(params, noise)[0][:3]
     assert np.all(np.asarray(alone) < 1e4), alone
     np.testing.assert_array_equal(np.asarray(alone), np.asarray(among))
-
-
-@pytest.mark.slow
-def test_the_cell_flies_mpc_on_each_seeds_model():
-    """``planner_kind = "mpc"`` on the hover through the family: DAgger, 3 seeds, 3 iterations.
-    Each row's test cost is MPC flying the seed's model (the final iteration's, re-flown here from
-    the saved ``W_features`` by the same MPC plant on the same test noise); the saved ``K`` are
-    the task-horizon iLQR gains of that model."""
-    s = scenario(
-        "hover", model_kind="features", model_degree=1, planner_kind="mpc", planner_horizon=10,
-        planner_every=5, planner_iterations=3, seeds=3, iterations=3, test_trajectories=2,
-    )  # fmt: skip
-    trace = family.run("dagger-t", s)
-    assert np.all(np.isfinite(trace.rows.test_cost))
-    assert trace.final["K"].shape == (3, 400, 4, 21)
-    key = family.program_key(s)
-    plant = family._mpc(key)[0].plant
-    noise = family._cell(key)[1].noise(seed_keys(np.arange(3))).test
-    costs, _ = jax.jit(plant.eval_seeds)(jnp.asarray(trace.final["W_features"]), noise)
-    np.testing.assert_allclose(trajectory_mean(costs), trace.rows.test_cost[:, -1], rtol=1e-9)
-
-    # loopid evaluate's path: MPC re-planning on each seed's saved model, on fresh noise (key
-    # stream 4); its first episode is the flight of the seed's restored model under that noise,
-    # and flying the saved gains instead costs something else
-    saved = {k: np.asarray(v) for k, v in trace.final.items()}
-    evaluated = family.evaluate(s, saved, np.arange(3), 2)
-    w = plant.eval_noise(jax.random.fold_in(jax.random.key(0), EVALUATE), 2)[0]
-    W0 = family._model(key).restore({"W_features": saved["W_features"][0]})
-    X, total = jax.jit(family._mpc(key)[0].flight)(W0, w)
-    assert X.shape == (401, 21)
-    np.testing.assert_allclose(evaluated[0, 0], min(float(total), s.cost_cap), rtol=1e-9)
-    gains = family.evaluate(s, {"K": saved["K"]}, np.arange(3), 2)
-    assert not np.allclose(gains, evaluated)
-
-    # loopid.load's controller (ReplanningController), called once a step from Python on seed
-    # 0's first test noise, flies the trajectory the cell's plant flew and charged
-    one = {k: v[0] for k, v in saved.items()} | {f"shared.{k}": v for k, v in
-                                                  family.shared(s, "dagger-t").items()}  # fmt: skip
-    _, controller = family.load(s, "dagger-t", one)
-    task, w = plant.task, np.asarray(noise[:, :, 0, 0])
-    qQ, qR = quadratic_form(task.Q), quadratic_form(task.R)
-    x, total = np.asarray(task.x0), 0.0
-    for t in range(400):
-        du = controller(x, t)
-        total += float(qQ(helicopter.to_error(x, task.target[t])) + qR(du))
-        x = np.asarray(helicopter.step(x, du, w[t]))
-    total += float(qQ(helicopter.to_error(x, task.target[400])))
-    np.testing.assert_allclose(total, costs[0, 0], rtol=1e-9)

@@ -186,3 +186,35 @@ def test_animate_a_gym_run_from_the_envs_own_frames(tmp_path, capsys):
     rows = pq.read_table(out / "evaluate.parquet").to_pylist()
     assert {r["env"] for r in rows} == {"Pendulum-v1"} and len(rows) == 2
     assert all(r["mean"] < 1.0 for r in rows)  # both hold the pendulum up on fresh episodes
+
+
+def test_every_entry_point_builds_the_env_once_and_closes_it(tmp_path, monkeypatch):
+    """``run``, ``check``, ``shared``, ``load`` and ``evaluate`` each open one env (the
+    scenario's :class:`~loopid.experiments.families.gym.setup.Setup`) and close it."""
+    from loopid.experiments.families.gym import env as gym_env
+
+    opened, closed = [], []
+
+    class Counted(gym_env.GymSystem):
+        def __init__(self, *args, **kwargs):
+            super().__init__(*args, **kwargs)
+            opened.append(self)
+
+        def close(self):
+            closed.append(self)
+            super().close()
+
+    monkeypatch.setattr(gym_env, "GymSystem", Counted)
+    small = {"seeds": 1, "iterations": 2, "samples": 50, "test_trajectories": 1}
+    _, s, _ = scenario_from_options("gym", write(tmp_path, "p.toml"), small, [])
+    T, m, n = s.horizon, 1, 3
+    calls = [
+        lambda: gym.run("dagger", s),
+        lambda: gym.check(s),
+        lambda: gym.shared(s, "dagger"),
+        lambda: gym.load(s, "dagger", {"K": np.zeros((T, m, n))}),
+        lambda: gym.evaluate(s, {"K": np.zeros((1, T, m, n))}, [0], 1),
+    ]
+    for k, call in enumerate(calls, start=1):
+        call()
+        assert len(opened) == k and closed == opened

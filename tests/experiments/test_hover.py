@@ -12,6 +12,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
+from conftest import tree_allclose
 from loopid.algorithms.loop import eval_noise, seed_keys
 from loopid.experiments.families.helicopter import agent as agent_of
 from loopid.experiments.families.helicopter import run, setup
@@ -120,10 +121,8 @@ def test_same_seed_same_trace(traces):
     np.testing.assert_array_equal(again.seeds, before.seeds)
     np.testing.assert_array_equal(again.iteration, before.iteration)
     np.testing.assert_array_equal(again.samples, before.samples)
-    a, b = (jax.tree_util.tree_leaves_with_path(t.rows) for t in (again, before))
-    assert [p for p, _ in a] == [p for p, _ in b] and len(a) >= 10
-    for (path, x), (_, y) in zip(a, b, strict=True):
-        np.testing.assert_array_equal(x, y, err_msg=str(path))
+    assert len(jax.tree_util.tree_leaves(again.rows)) >= 10
+    assert tree_allclose(again.rows, before.rows, rtol=0.0, atol=0.0)
 
 
 def test_policy_fractions_on_hover(traces):

@@ -9,7 +9,7 @@ import pytest
 
 from conftest import cli
 from loopid import control
-from loopid.algorithms.host_loop import test_episodes as flown_episodes
+from loopid.algorithms.gym_loop import test_episodes as flown_episodes
 from loopid.experiments.families import gym
 from loopid.experiments.scenarios import scenario
 from loopid.systems import pendulum

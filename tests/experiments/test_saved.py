@@ -142,16 +142,15 @@ def test_a_reloaded_mdp_policy_gives_the_recorded_exact_cost(tmp_path):
 
 @pytest.mark.slow
 def test_a_reloaded_gym_controller_gives_the_recorded_costs_exactly(tmp_path):
-    from loopid.algorithms.host_loop import test_episodes
+    from loopid.algorithms.gym_loop import test_episodes
     from loopid.cli import scenario_from_options
 
     example = __import__("pathlib").Path(__file__).resolve().parents[2] / "examples"
     _, s, _ = scenario_from_options("gym", example / "pendulum.toml", {"seeds": 2,
                                     "iterations": 2, "test_trajectories": 3}, [])  # fmt: skip
     table = run_cells(tmp_path, [s], ["dagger"])
-    system = gym.make_system(s)
-    try:
-        _, _, test_cost = gym._parts(s, system)
+    with gym.gym_setup(s) as setup:
+        system, test_cost = setup.system, setup.test_cost
         for seed, recorded in final_costs(table, "dagger").items():
             saved = loopid.load(tmp_path, "gym", "dagger", seed)
             costs, _ = test_episodes(system, saved.controller.K[None], [seed], 3, test_cost,
@@ -165,8 +164,6 @@ def test_a_reloaded_gym_controller_gives_the_recorded_costs_exactly(tmp_path):
                 obs, reward, *_ = env.step(policy(obs))
                 costs.append(-reward)
             assert np.mean(costs[-50:]) < 0.01  # it holds the pendulum up
-    finally:
-        system.close()
 
 
 def test_artifact_shapes_are_checked(tmp_path):

@@ -6,12 +6,12 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from loopid.algorithms.host_loop import (
+from loopid.algorithms.gym_loop import (
     Exploration,
     episode_costs,
     gym_agent,
+    gym_nominal_model,
     make_host_cell,
-    nominal_model,
     run_learning_host,
 )
 from loopid.systems import helicopter
@@ -20,7 +20,7 @@ from loopid.systems.from_gymnasium import (
     GymSystem,
     LinearPolicy,
     Slot,
-    quadratic_cost,
+    observation_cost,
     slot_streams,
 )
 
@@ -136,21 +136,21 @@ def test_terminated_truncated_clipping_and_restarts():
     np.testing.assert_array_equal(r.t[1], [0, 1, 2, 3, 0, 1, 2, 3, 0, 1])
 
 
-def test_linear_policy_and_quadratic_cost_closed_forms(rng):
+def test_linear_policy_and_observation_cost_closed_forms(rng):
     K = rng.standard_normal((2, 4))
     target, a_op = rng.standard_normal(3), rng.standard_normal(2)
     obs = rng.standard_normal((5, 3))
     a = LinearPolicy(K, target, a_op).act(obs, np.zeros(5, int), np.zeros(5, int))
     dx = np.concatenate([obs - target, np.ones((5, 1))], axis=1)
     np.testing.assert_allclose(a, a_op - dx @ K.T, rtol=1e-14)
-    cost = quadratic_cost(target, [1.0, 2.0, 3.0], 0.5 * np.eye(2), a_op)
+    cost = observation_cost(target, [1.0, 2.0, 3.0], 0.5 * np.eye(2), a_op)
     e, d = obs[0] - target, a[0] - a_op
     assert cost(obs[0], a[0]) == pytest.approx(e @ np.diag([1.0, 2.0, 3.0]) @ e + 0.5 * d @ d)
     np.testing.assert_allclose(cost(obs, a), [cost(o, u) for o, u in zip(obs, a, strict=True)])
     Qa, _ = cost.augmented()
     assert Qa.shape == (4, 4) and Qa[3].sum() == 0 and Qa[:, 3].sum() == 0
     with pytest.raises(ValueError, match="Q must"):
-        quadratic_cost(target, np.eye(2), [1.0])
+        observation_cost(target, np.eye(2), [1.0])
 
 
 def test_reward_cost_matches_the_pendulum_formula():
@@ -188,8 +188,8 @@ def test_host_loop_semantics_and_common_random_numbers():
         "Pendulum-v1", target=[0.0, 0.0], observe=[1, 2], horizon=50, num_envs=4, stop_norm=1.0,
         **PENDULUM,
     ) as system:  # fmt: skip
-        cost = quadratic_cost([0.0, 0.0], [1.0, 0.1], [0.001])
-        agent = gym_agent(system, cost, nominal_model(system))
+        cost = observation_cost([0.0, 0.0], [1.0, 0.1], [0.001])
+        agent = gym_agent(system, cost, gym_nominal_model(system))
         nu = Exploration(system.linear_policy(np.array([[3.0, 0.5]])), 0.5)
         cell = make_host_cell(agent, samples=60)
         run = dict(samples=60, n_test=3, cost=cost, cell=cell)

@@ -14,7 +14,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from loopid.experiments.families.helicopter import helicopter_plant, nominal_model
+from loopid.algorithms.helicopter_plant import helicopter_nominal_model, helicopter_plant
 from loopid.models.linear_offset import time_varying_nominal
 from loopid.systems import helicopter as h
 from loopid.systems.funnel_nominal import (
@@ -61,11 +61,11 @@ def test_spec_is_the_runner_nominal_bit_for_bit(funnel, pads):
         default = funnel_nominal("heading", plant.task)
         np.testing.assert_array_equal(funnel.nominal.A, default.A)
         np.testing.assert_array_equal(funnel.nominal.B, default.B)
-        today = nominal_model(plant, "spec")
+        today = helicopter_nominal_model(plant, "spec")
         assert today.A.shape == (599, 21, 21)
     else:  # the runner's nominal of the 400-step variant, without its (slow) expert
         plant = helicopter_plant(make_task("funnel", pads=False))
-        today = nominal_model(plant)
+        today = helicopter_nominal_model(plant)
     ours = funnel_nominal("spec", plant.task)
     np.testing.assert_array_equal(ours.A, today.A)
     np.testing.assert_array_equal(ours.B, today.B)

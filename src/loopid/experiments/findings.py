@@ -1,11 +1,11 @@
-"""The paper's five findings (SPEC §4.5), each computed from a results table and marked
-*holds* / *does not hold*; ``report.md`` of a helicopter run and ``study.md`` show them.
+"""The paper's five findings (what its Figure 2 shows, section 6), each computed from a results
+table and marked *holds* / *does not hold*; ``report.md`` of a helicopter run and ``study.md``
+show them.
 
 The statistics, per panel (scenario) and method, are over seeds of the test cost at the method's
 **final** iteration (``final``), or at iteration 2 (``first``, the first policy fitted to data).
-Each finding is judged on **medians** over seeds (SPEC §4.4: a few diverging seeds, capped at
-``cost_cap``, dominate means) and, for comparison, on means. Nothing is tuned to make a finding
-hold.
+Each finding is judged on **medians** over seeds (a few diverging seeds, capped at ``cost_cap``,
+dominate means) and, for comparison, on means. Nothing is tuned to make a finding hold.
 
 "Good performance" (findings 2 and 5) is a fixed threshold chosen before looking at any result:
 a final cost at most :data:`GOOD_FACTOR` times the linearised expert L's in the same panel.
@@ -24,7 +24,7 @@ STATS: dict[str, Callable[[np.ndarray], float]] = {"median": np.median, "mean": 
 
 
 class Finding(NamedTuple):
-    """One of SPEC §4.5's findings: ``verdict`` on medians, ``mean_verdict`` on means (each
+    """One of the paper's five findings: ``verdict`` on medians, ``mean_verdict`` on means (each
     ``holds``, ``does not hold`` or ``not measured``), how it was computed, and the numbers."""
 
     number: int
@@ -88,7 +88,7 @@ def _judge(number, claim, how, check) -> Finding:
 
 
 def findings(table: pa.Table, hover_panels: set[str] | None = None) -> list[Finding]:
-    """The five findings of SPEC §4.5 computed from ``table``.
+    """The paper's five findings computed from ``table``.
 
     ``hover_panels``: the scenarios whose task is a hover (finding 3; none when not given).
     """
@@ -215,9 +215,9 @@ def findings(table: pa.Table, hover_panels: set[str] | None = None) -> list[Find
 def findings_section(table: pa.Table, hover_panels: set[str] | None = None) -> list[str]:
     """``report.md``'s section on the findings: each verdict, how it was computed, the numbers."""
     L = [
-        "## The paper's findings (SPEC §4.5)",
+        "## The paper's findings",
         "",
-        "Verdicts on medians over seeds (a few diverging seeds dominate means, SPEC §4.4); the "
+        "Verdicts on medians over seeds (a few diverging seeds dominate means); the "
         "verdict on means follows, and a comparison whose outcome differs on means says so. "
         "`final(m)` is the test cost at method m's last iteration; numbers are medians.",
         "",
@@ -226,7 +226,7 @@ def findings_section(table: pa.Table, hover_panels: set[str] | None = None) -> l
     if seeds < 20:
         L += [
             f"*A small run ({seeds} seeds): the findings are claims about the protocol scale "
-            "(SPEC §4.4, 20 seeds); here they are computed the same way but say little.*",
+            "(20 seeds, as in the paper); here they are computed the same way but say little.*",
             "",
         ]
     for f in findings(table, hover_panels):

@@ -3,9 +3,10 @@
 - :class:`GainController`: the time-varying affine policy of the loop,
   ``action_t = a_op − K_t Δx_t`` with ``Δx_t`` the system's error coordinates of the observation
   at step t (the helicopter: ``to_error(x_t, x*_t)``, action = the control change Δu; a Gymnasium
-  env: ``[o_t[observe] − o*; 1]``). Under the helicopter's ``latency`` reading (SPEC §5.1) it acts
-  on the error observed ``delay`` steps earlier, as the loop's controller did, and so keeps those
-  steps in memory (:meth:`GainController.reset` at an episode's start; step 0 resets it).
+  env: ``[o_t[observe] − o*; 1]``). Under the helicopter's ``latency`` reading of the delay
+  (``delay_mode``) it acts on the error observed ``delay`` steps earlier, as the loop's
+  controller did, and so keeps those steps in memory (:meth:`GainController.reset` at an
+  episode's start; step 0 resets it).
 - :class:`ReplanningController`: model-predictive control on a saved model, one step at a time:
   what a helicopter cell that flew MPC flew (:mod:`loopid.algorithms.mpc_plant`).
 - :class:`TableController`: a finite MDP's policy, the action of highest probability in a state.

@@ -61,7 +61,8 @@ class Scenario(model_planner.ModelPlanner):
       nu_state_var, nu_action_var: ν_t's state and action noise variances.
       expert_action_var: ν_en's action noise variance.
       ftrl_lambda: λ of the FTRL regulariser (λ/√n)‖W‖²_F.
-      test_policy: ``last``, ``best`` or ``mixture`` (SPEC §1).
+      test_policy: the policy tested: ``last`` (the paper's), ``best`` (lowest measured
+        cost so far) or ``mixture`` (one of π_1..π_n drawn per test trajectory).
       cost_cap: a test trajectory's total cost is capped here (and counted as diverged).
       pg_horizon, pg_sigma, pg_step: the policy-gradient baseline's longest rollout (steps),
         perturbation size in action units and first trust radius in probing radii (see

@@ -4,7 +4,7 @@ linear-Gaussian test system, finite MDPs, and any Gymnasium environment (:class:
 from loopid.systems import helicopter, tasks
 from loopid.systems.as_gymnasium import HelicopterEnv
 from loopid.systems.base import Dynamics
-from loopid.systems.from_gymnasium import GymSystem, QuadraticCost, quadratic_cost
+from loopid.systems.from_gymnasium import GymSystem, ObservationCost, observation_cost
 from loopid.systems.helicopter import (
     from_error,
     funnel_target,
@@ -38,7 +38,7 @@ __all__ = [
     "FiniteMDP",
     "GymSystem",
     "HelicopterEnv",
-    "QuadraticCost",
+    "ObservationCost",
     "Task",
     "check_mdp",
     "cost_matrices",
@@ -54,7 +54,7 @@ __all__ = [
     "make_mdp",
     "make_task",
     "noise_sequence",
-    "quadratic_cost",
+    "observation_cost",
     "random_mdp",
     "rollout",
     "step",
@@ -65,3 +65,12 @@ __all__ = [
     "trajectory_cost",
     "trap_mdp",
 ]
+
+
+def __getattr__(name: str):
+    """The old names of :class:`ObservationCost` and :func:`observation_cost`, for one release."""
+    from loopid.systems import from_gymnasium
+
+    if name in from_gymnasium._RENAMED:
+        return getattr(from_gymnasium, name)
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

@@ -45,20 +45,20 @@ __all__ = [
     "CallablePolicy",
     "GymSystem",
     "LinearPolicy",
+    "ObservationCost",
     "OpenLoopPolicy",
-    "QuadraticCost",
     "Rollouts",
     "Slot",
     "make_env_fn",
-    "quadratic_cost",
+    "observation_cost",
     "slot_streams",
 ]
 
 
 # ----------------------------------------------------------------------------- costs
-class QuadraticCost(NamedTuple):
-    """``c(o, a) = (o − o*)ᵀ Q (o − o*) + (a − a_op)ᵀ R (a − a_op)``: a quadratic cost on
-    observations.
+class ObservationCost(NamedTuple):
+    """The quadratic cost on an env's observed entries and actions (the helicopter task's cost,
+    written on observations): ``c(o, a) = (o − o*)ᵀ Q (o − o*) + (a − a_op)ᵀ R (a − a_op)``.
 
     ``target`` [n_obs], ``Q`` [n_obs, n_obs], ``R`` [m, m], ``a_op`` [m]. Callable on one pair
     (returns a float) or on batches ``obs [..., n_obs]``, ``action [..., m]`` (returns ``[...]``).
@@ -116,8 +116,8 @@ def _vector(name: str, value, size: int) -> np.ndarray:
     return v
 
 
-def quadratic_cost(target, Q, R, a_op=None) -> QuadraticCost:
-    """A checked :class:`QuadraticCost`; ``Q``/``R`` may be full matrices, diagonals or scalars.
+def observation_cost(target, Q, R, a_op=None) -> ObservationCost:
+    """A checked :class:`ObservationCost`; ``Q``/``R`` may be full matrices, diagonals or scalars.
 
     Raises ValueError naming ``Q``, ``R``, ``target`` or ``a_op`` when a size does not match.
     """
@@ -130,7 +130,7 @@ def quadratic_cost(target, Q, R, a_op=None) -> QuadraticCost:
     Qm = _square("Q", Q, t.size)
     Rm = _square("R", R, m)
     a = np.zeros(m) if a_op is None else _vector("a_op", a_op, m)
-    return QuadraticCost(t, Qm, Rm, a)
+    return ObservationCost(t, Qm, Rm, a)
 
 
 # ----------------------------------------------------------------------------- policies
@@ -484,3 +484,22 @@ class GymSystem:
         for a_ in (x, dx, du, dx_next, reward):
             a_[zero] = 0.0
         return Rollouts(x, dx, du, dx_next, t_buf, mask, reward, steps, terminated, finite)
+
+
+#: Names this module had before, kept for one release (``DeprecationWarning``).
+_RENAMED = {"QuadraticCost": "ObservationCost", "quadratic_cost": "observation_cost"}
+
+
+def __getattr__(name: str):
+    if name in _RENAMED:
+        import warnings
+
+        new = _RENAMED[name]
+        warnings.warn(
+            f"loopid.systems.from_gymnasium.{name} is now {new} (loopid.control.{name} is the "
+            "planner's cost); the old name goes in the next release",
+            DeprecationWarning,
+            stacklevel=2,
+        )
+        return globals()[new]
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

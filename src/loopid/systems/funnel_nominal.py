@@ -84,7 +84,7 @@ VELOCITY = helicopter.NED_DOT  # indices 8:11 of the error coordinates
 
 
 def _increments(target: jax.Array) -> jax.Array:
-    """inc_t = x*_{t+1} ⊖ x*_t [T, 21] (constant entry 0), as ``runner.nominal_model`` builds it."""
+    """inc_t = x*_{t+1} ⊖ x*_t [T, 21] (constant entry 0): the target's own motion."""
     return jax.vmap(helicopter.target_increment)(target[:-1], target[1:])
 
 
@@ -133,9 +133,9 @@ def funnel_nominal(kind: str, task: Task) -> LinearOffsetModel:
     """The funnel's nominal model of reading ``kind`` (module docstring), for ``task`` (its target).
 
     Returns a time-varying :class:`LinearOffsetModel`: A [T, 21, 21], B [T, 21, 4] with
-    T = ``task.horizon`` = len(target) − 1. ``"spec"`` is bit for bit what
-    ``loopid.experiments.runner.nominal_model`` builds for the funnel. Raises ValueError for an
-    unknown ``kind``.
+    T = ``task.horizon`` = len(target) − 1 (the funnel's initial model in
+    :func:`loopid.algorithms.helicopter_plant.helicopter_nominal_model`). Raises ValueError for
+    an unknown ``kind``.
     """
     if kind not in FUNNEL_NOMINALS:
         raise ValueError(
@@ -147,7 +147,7 @@ def funnel_nominal(kind: str, task: Task) -> LinearOffsetModel:
     if kind == "heading":
         return LinearOffsetModel(*_heading_model(target))
     hover = helicopter.hover_target()
-    A, B = helicopter.linearize(hover, hover)  # the same eager ops as runner.nominal_model
+    A, B = helicopter.linearize(hover, hover)
     if kind == "spec":
         inc = _increments(target)
     elif kind == "no-increment":

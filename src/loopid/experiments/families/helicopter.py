@@ -6,8 +6,9 @@ Config: :class:`loopid.experiments.scenarios.Scenario` (the packaged panels ``ho
 :data:`loopid.algorithms.methods.METHODS`.
 
 For a scenario this module builds the plant (the JAX helicopter under the task:
-:func:`helicopter_plant`), the linearised expert L, the initial model (:func:`nominal_model`),
-the model-based agent (linear offset model, FTRL, LQR) and the exploration distributions, then
+:func:`loopid.algorithms.helicopter_plant.helicopter_plant`), the linearised expert L, the
+initial model (:func:`loopid.algorithms.helicopter_plant.helicopter_nominal_model`), the
+model-based agent (linear offset model, FTRL, LQR) and the exploration distributions, then
 runs a method on all seeds at once (:mod:`loopid.algorithms.loop`). Figure: the paper's Figure 2
 (:mod:`loopid.experiments.plots`); report: the final costs with each panel's readings of the
 details the paper leaves open (:mod:`loopid.experiments.readings`), and the paper's five
@@ -28,6 +29,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from loopid.algorithms import helicopter_plant as core
 from loopid.algorithms import methods as M
 from loopid.algorithms.expert import expert_gains
 from loopid.algorithms.keys import TEST, stream_key
@@ -43,7 +45,7 @@ from loopid.algorithms.loop import (
     seed_keys,
 )
 from loopid.algorithms.loop import run_lanes as run_learning_lanes
-from loopid.algorithms.plant import Plant, make_plant
+from loopid.algorithms.plant import Plant
 from loopid.algorithms.policy_gradient import run_policy_gradient
 from loopid.experiments import model_planner
 from loopid.experiments.config import read_flat_file
@@ -52,30 +54,9 @@ from loopid.experiments.findings import findings_section
 from loopid.experiments.report import final_cost_sections
 from loopid.experiments.scenarios import FIELDS, SCENARIOS, Scenario, readings_line, scenario
 from loopid.exploration import NU_KINDS, make_nu
-from loopid.models.linear_offset import LinearOffsetModel, hover_nominal
+from loopid.models.linear_offset import LinearOffsetModel
 from loopid.systems import helicopter
-from loopid.systems.funnel_nominal import funnel_nominal
-from loopid.systems.tasks import Task, is_hover, make_task
-
-
-def helicopter_plant(task: Task, **options) -> Plant:
-    """The helicopter of SPEC §3 under ``task`` as the loop's plant (``options``: those of
-    :func:`loopid.algorithms.plant.make_plant`)."""
-    return make_plant(task, helicopter.DYNAMICS, **options)
-
-
-def nominal_model(plant: Plant, funnel: str = "spec") -> LinearOffsetModel:
-    """The initial model every method starts from (SPEC §4.2).
-
-    Hover tasks: A = I, B adds Δu into u_prev and du_prev (the paper's hover model). The funnel:
-    the nominal of the reading ``funnel`` (SPEC §5.2,
-    :func:`loopid.systems.funnel_nominal.funnel_nominal`; ``spec``: the true simulator
-    linearised about hover trim, the same at every step, plus the target's own motion
-    ``−(x*_{t+1} ⊖ x*_t)``).
-    """
-    if is_hover(plant.task):
-        return hover_nominal(helicopter.N_STATE, helicopter.N_ACTION)
-    return funnel_nominal(funnel, plant.task)
+from loopid.systems.tasks import is_hover, make_task
 
 
 class Setup(NamedTuple):
@@ -95,11 +76,13 @@ def program_key(s: Scenario) -> Scenario:
 @lru_cache(maxsize=8)
 def _setup(key: Scenario) -> Setup:
     task = make_task(key.task, noise_std=key.noise_std, delay=key.delay, pads=key.pads)
-    plant = helicopter_plant(
+    plant = core.helicopter_plant(
         task, stop_norm=key.stop_norm, nu_pending=key.nu_pending, cost_cap=key.cost_cap,
         delay_mode=key.delay_mode,
     )  # fmt: skip
-    return Setup(plant, expert_gains(task), nominal_model(plant, key.funnel_nominal))
+    return Setup(
+        plant, expert_gains(task), core.helicopter_nominal_model(plant, key.funnel_nominal)
+    )
 
 
 def setup(s: Scenario) -> Setup:
@@ -447,6 +430,26 @@ def animate(run_dir, s: Scenario, methods, seed: int, path) -> None:
                 f"{s.name} has no saved policy of method {m!r}; it has {', '.join(saved)}"
             )
     animate_flights(setup(s).plant.task, _flights(run_dir, s, methods, seed), path)
+
+
+#: Names this module offered that live in the core now
+#: (:mod:`loopid.algorithms.helicopter_plant`).
+_MOVED = {"helicopter_plant": "helicopter_plant", "nominal_model": "helicopter_nominal_model"}
+
+
+def __getattr__(name: str):
+    if name in _MOVED:
+        import warnings
+
+        new = f"loopid.algorithms.helicopter_plant.{_MOVED[name]}"
+        warnings.warn(
+            f"loopid.experiments.families.helicopter.{name} is now {new}; the old name goes in "
+            "the next release",
+            DeprecationWarning,
+            stacklevel=2,
+        )
+        return getattr(core, _MOVED[name])
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
 
 
 FAMILY = Family(

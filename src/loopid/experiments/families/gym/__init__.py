@@ -1,0 +1,108 @@
+"""The Gymnasium family: any Gymnasium env with Box spaces as the real system, from a TOML file.
+
+``loopid run gym --config FILE`` (``examples/pendulum.toml`` is a complete file; the format is
+in :mod:`.scenario`). The common options (``--seeds``, ``--iterations``, ``--samples``,
+``--test-trajectories``, ``--methods``) and ``--set FIELD=VALUE`` override the file, as for every
+family. Every problem (unknown or missing key, wrong size, Discrete space, unknown env id)
+raises ``ValueError`` with one line naming the value, before anything is written
+(:func:`check` builds the env once).
+
+Methods: ``dagger`` (p_n = ``dagger_fraction``), ``batch`` (p_n = 0), ``abbeel`` (ν's data at
+n = 2, then the policy's), run by :func:`loopid.algorithms.gym_loop.run_learning_host`. Figure:
+mean test cost against samples, ± one standard error, per method; report: the final costs.
+
+One module per idea:
+
+- :mod:`.scenario`: :class:`GymScenario`, its checks and its TOML file (:func:`read_file`,
+  :func:`build`);
+- :mod:`.env`: the one place an env is built and closed (:func:`make_system`);
+- :mod:`.agent`: the cost, the nominal model and the agent, compiled once per scenario;
+- :mod:`.setup`: the :class:`Setup` every entry point builds once, :func:`run`, :func:`check`,
+  :func:`shared`;
+- :mod:`.saved`: saved policies reloaded, evaluated and filmed (:func:`load`,
+  :func:`evaluate`, :func:`animate`);
+- :mod:`.figures`: :func:`figure`, :func:`trajectories` and :func:`report`.
+"""
+
+from loopid.experiments.families.base import Family
+from loopid.experiments.families.gym.agent import CompiledAgent, compiled_agent
+from loopid.experiments.families.gym.env import EnvShape, EnvSpec, env_shape, make_system
+from loopid.experiments.families.gym.figures import figure, report, trajectories
+from loopid.experiments.families.gym.saved import animate, evaluate, load, saved_policy
+from loopid.experiments.families.gym.scenario import (
+    FIELDS,
+    METHODS,
+    TABLES,
+    GymScenario,
+    build,
+    read_file,
+    validate,
+)
+from loopid.experiments.families.gym.setup import Setup, check, gym_setup, run, shared
+
+FAMILY = Family(
+    name="gym",
+    config=GymScenario,
+    methods=METHODS,
+    scenarios={},
+    default_methods=lambda s: ("dagger", "batch"),
+    build=build,
+    read_file=read_file,
+    run=run,
+    figure=figure,
+    report=report,
+    check=check,
+    shared=shared,
+    load=load,
+    evaluate=evaluate,
+    trajectories=trajectories,
+    animate=animate,
+)
+
+#: Names this module had before it became a package, kept for one release.
+_RENAMED = {"Learner": "CompiledAgent", "Shape": "EnvShape"}
+
+
+def __getattr__(name: str):
+    if name in _RENAMED:
+        import warnings
+
+        new = _RENAMED[name]
+        warnings.warn(
+            f"loopid.experiments.families.gym.{name} is now {new}; the old name goes in the "
+            "next release",
+            DeprecationWarning,
+            stacklevel=2,
+        )
+        return globals()[new]
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+
+
+__all__ = [
+    "FAMILY",
+    "FIELDS",
+    "METHODS",
+    "TABLES",
+    "CompiledAgent",
+    "EnvShape",
+    "EnvSpec",
+    "GymScenario",
+    "Setup",
+    "animate",
+    "build",
+    "check",
+    "compiled_agent",
+    "env_shape",
+    "evaluate",
+    "figure",
+    "gym_setup",
+    "load",
+    "make_system",
+    "read_file",
+    "report",
+    "run",
+    "saved_policy",
+    "shared",
+    "trajectories",
+    "validate",
+]

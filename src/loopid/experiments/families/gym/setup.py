@@ -1,0 +1,123 @@
+"""What every entry point of the gym family builds first, once: the :class:`Setup`.
+
+:func:`gym_setup` opens the scenario's env (:mod:`.env`) and builds everything a cell or a saved
+policy needs from it: the env's sizes and coordinates, the compiled agent (:mod:`.agent`, cached
+across calls), ν and the test cost. ``run`` (one cell), ``check``, ``shared``, ``load``,
+``evaluate``, ``trajectories`` and ``animate`` all take that one object; the env is closed when
+the ``with`` block ends. Every problem found while building it (a size that does not fit the env,
+a ``module:function`` that does not import) is one line of ``ValueError``.
+
+Methods: ``dagger`` (p_n = ``dagger_fraction``), ``batch`` (p_n = 0), ``abbeel`` (ν's data at
+n = 2, then the policy's), run by :func:`loopid.algorithms.gym_loop.run_learning_host`.
+"""
+
+from collections.abc import Iterator
+from contextlib import contextmanager
+from typing import Any, NamedTuple
+
+import numpy as np
+
+from loopid.algorithms.gym_loop import Exploration, run_learning_host
+from loopid.algorithms.loop import Trace
+from loopid.algorithms.methods import policy_fractions
+from loopid.experiments.config import seed_list
+from loopid.experiments.families.base import Progress
+from loopid.experiments.families.gym.agent import (
+    CompiledAgent,
+    checked,
+    compiled_agent,
+    design_cost,
+    import_callable,
+    nominal,
+)
+from loopid.experiments.families.gym.env import EnvShape, env_shape, opened_system
+from loopid.experiments.families.gym.scenario import FRACTIONS, METHODS, GymScenario
+from loopid.systems.from_gymnasium import CallablePolicy, GymSystem, OpenLoopPolicy
+
+
+class Setup(NamedTuple):
+    """A gym scenario built against its env.
+
+    Attributes:
+      scenario: the :class:`GymScenario`; values: its fields as plain values
+        (:attr:`~.scenario.GymScenario.plain`).
+      system: the open env (:class:`~loopid.systems.from_gymnasium.GymSystem`), the loop's plant.
+      shape: its sizes and coordinates (:class:`~.env.EnvShape`).
+      compiled: the agent, its compiled host cell and controller (:class:`~.agent.CompiledAgent`).
+      exploration: ν (:class:`~loopid.algorithms.gym_loop.Exploration`).
+      test_cost: an :class:`~loopid.systems.from_gymnasium.ObservationCost`, ``"reward"`` or a
+        callable ``cost(obs, action)``.
+    """
+
+    scenario: GymScenario
+    values: dict
+    system: GymSystem
+    shape: EnvShape
+    compiled: CompiledAgent
+    exploration: Exploration
+    test_cost: Any
+
+
+def _exploration(v: dict, system: GymSystem) -> Exploration:
+    """ν: the ``[exploration]`` table's gain, policy or open-loop actions, with its noise."""
+    if v["gain"] is not None:
+        policy = checked("exploration.gain", system.linear_policy, v["gain"])
+    elif v["policy"] is not None:
+        policy = CallablePolicy(import_callable(v["policy"], "exploration.policy"), system.m)
+    else:
+        U = np.asarray(v["nominal"], dtype=np.float64)
+        if U.ndim != 2 or U.shape[1] != system.m or U.shape[0] < 1:
+            raise ValueError(f"[exploration] nominal must be [T, {system.m}], got shape {U.shape}")
+        policy = OpenLoopPolicy(U)
+    return Exploration(policy, float(v["action_std"]))
+
+
+def _test_cost(v: dict, shape: EnvShape):
+    if v["test_cost"] == "quadratic":
+        return design_cost(v, shape)
+    if v["test_cost"] == "reward":
+        return "reward"
+    return import_callable(v["test_cost"], "cost.test")
+
+
+@contextmanager
+def gym_setup(s: GymScenario) -> Iterator[Setup]:
+    """The :class:`Setup` of ``s``; its env is closed when the ``with`` block ends."""
+    with opened_system(s) as system:
+        try:
+            v = s.plain
+            shape = env_shape(system)
+            parts = compiled_agent(s, shape), _exploration(v, system), _test_cost(v, shape)
+        except (ValueError, TypeError) as err:
+            raise ValueError(str(err).splitlines()[0]) from None
+        yield Setup(s, v, system, shape, *parts)
+
+
+def check(s: GymScenario) -> None:
+    """Build the env and every part once, so that a size that does not fit the env is refused
+    before anything is written."""
+    with gym_setup(s):
+        pass
+
+
+def run(method: str, s: GymScenario, seeds=None, progress: Progress | None = None) -> Trace:
+    """Run ``method`` (:data:`~.scenario.METHODS`) on every seed (default
+    :func:`~loopid.experiments.config.seed_list`): ``N = iterations`` rows per seed."""
+    if method not in METHODS:
+        raise ValueError(f"unknown gym method {method!r}; choose from {', '.join(METHODS)}")
+    seeds = seed_list(s) if seeds is None else np.asarray(seeds)
+    fractions = policy_fractions(FRACTIONS[method], s.iterations, dagger_fraction=s.dagger_fraction)
+    with gym_setup(s) as setup:
+        return run_learning_host(
+            setup.system, setup.compiled.agent, setup.exploration, fractions,
+            [int(x) for x in seeds], samples=s.samples, n_test=s.test_trajectories,
+            cost=setup.test_cost, termination_cost=s.termination, cost_cap=s.cost_cap,
+            progress=progress, cell=setup.compiled.cell, controller=setup.compiled.controller,
+        )  # fmt: skip
+
+
+def shared(s: GymScenario, method: str) -> dict:
+    """The nominal model ``A``, ``B`` every seed's learned offsets add to."""
+    with gym_setup(s) as setup:
+        model = nominal(setup.values, setup.shape)
+    return {"A": np.asarray(model.A), "B": np.asarray(model.B)}

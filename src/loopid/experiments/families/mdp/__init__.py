@@ -1,0 +1,84 @@
+r"""The finite-MDP family: the paper's theory made visible, through the same loop and results.
+
+Scenarios (:data:`MDP_SCENARIOS`):
+
+- ``mdp-random``: a random MDP (S = 10, A = 3, Dirichlet(0.3) rows, costs U[0, 1], γ = 0.9),
+  ν uniform over the state-action pairs (the best ν for Batch), count-estimator model: the
+  realisable case, where DAgger and Batch both become optimal.
+- ``mdp-trap``: :func:`loopid.systems.mdp.trap_mdp` with ν = D_{μ,π_ε} of "walk, but act at
+  random with probability ε = 10⁻³" (a base policy's distribution with action noise): Batch's
+  policy jumps into the region ν rarely sees (huge c_ν^π̂), DAgger's does not.
+- ``mdp-trap-hinge``: the same with the deterministic classifier model (online hinge): a
+  misspecified class on a stochastic system (the walk slips), i.e. the agnostic case.
+
+Methods (:data:`MDP_METHODS`): ``dagger`` (p_n = ½), ``batch`` (p_n = 0), ``abbeel`` (ν at
+n = 2, then the policy only); the fractions come from
+:func:`loopid.algorithms.methods.policy_fractions`. Policy draws are ``geometric`` (exact
+draws from D_{μ,π}, the paper's analysis). Every method of a scenario shares one compiled cell.
+
+Extra result columns (:func:`loopid.algorithms.mdp_agent.mdp_diagnostics`): ``j_policy``,
+``j_best``, ``j_mixture``, ``j_optimal``, ``bound`` (Theorem 3.1 while all data came from ν,
+Lemma 4.1 once the policies contribute), ``eps_prd_l1``, ``eps_prd_kl``, ``eps_mdl_l1``,
+``eps_oc``, ``c_nu``, ``c_nu_policy``. ``test_cost`` is the exact J of the iteration's policy.
+
+One module per idea: :mod:`.scenario` (the scenarios, their MDP, ν, model and compiled cell,
+:func:`run_mdp`, saved policies reloaded and evaluated exactly) and :mod:`.figures` (the
+figure, the report section and ``trajectories.png``).
+"""
+
+from dataclasses import fields
+
+from loopid.algorithms.loop import cell_memory
+from loopid.experiments.config import read_flat_file
+from loopid.experiments.families.base import Family
+from loopid.experiments.families.mdp.figures import mdp_figure, report, trajectories
+from loopid.experiments.families.mdp.scenario import (
+    MDP_METHODS,
+    MDP_SCENARIOS,
+    MDPScenario,
+    MDPSetup,
+    build,
+    evaluate,
+    load,
+    mdp_setup,
+    run_mdp,
+    scenario_mdp,
+    scenario_model,
+    scenario_nu,
+)
+
+FAMILY = Family(
+    name="mdp",
+    config=MDPScenario,
+    methods=MDP_METHODS,
+    scenarios=MDP_SCENARIOS,
+    default_methods=lambda s: MDP_METHODS,
+    build=build,
+    read_file=lambda path: read_flat_file(path, [f.name for f in fields(MDPScenario)]),
+    run=lambda method, s, seeds=None, progress=None: run_mdp(method, s, seeds, progress),
+    figure=lambda table, path, configs: mdp_figure(table, path),
+    report=report,
+    load=load,
+    evaluate=evaluate,
+    trajectories=trajectories,
+    memory=lambda s, method, seeds: cell_memory(mdp_setup(s).cell, seeds),
+)
+
+__all__ = [
+    "FAMILY",
+    "MDP_METHODS",
+    "MDP_SCENARIOS",
+    "MDPScenario",
+    "MDPSetup",
+    "build",
+    "evaluate",
+    "load",
+    "mdp_figure",
+    "mdp_setup",
+    "report",
+    "run_mdp",
+    "scenario_mdp",
+    "scenario_model",
+    "scenario_nu",
+    "trajectories",
+]
