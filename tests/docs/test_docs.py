@@ -45,20 +45,10 @@ RUN_ELSEWHERE = {
 # Where internal notes may be named: the history keeps its references.
 HISTORY = {"CHANGELOG.md", "docs/changelog.md", "docs/paper/notes.md"}
 
-# Files whose docstrings (or, for TOML, comments) still name the internal specification or an
-# issue number: they are being edited elsewhere and are cleaned after that work is merged.
-# Remove a path once it is clean; the test fails on a listed path that is already clean.
-PENDING = {
-    "src/loopid/algorithms/loop.py",
-    "src/loopid/experiments/families/helicopter.py",
-    "src/loopid/experiments/findings.py",
-    "src/loopid/experiments/learned.py",
-    "src/loopid/experiments/model_planner.py",
-    "src/loopid/experiments/scenarios.py",
-    "src/loopid/experiments/scenarios/funnel.toml",
-    "src/loopid/experiments/scenarios/hover-delay.toml",
-    "src/loopid/experiments/scenarios/hover.toml",
-}
+# Files whose docstrings (or, for TOML, comments) may still name the internal specification or
+# an issue number while they are being edited elsewhere; none now. Remove a path once it is
+# clean; the test fails on a listed path that is already clean.
+PENDING: set[str] = set()
 
 # "SPEC" in capitals (the reading `spec` is a name users type); "issue 19", "Issue #3".
 INTERNAL = re.compile(r"\bSPEC\b|\b[Ii]ssue\s+#?\d+")

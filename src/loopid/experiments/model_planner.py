@@ -1,6 +1,6 @@
 """The ``[model]`` and ``[planner]`` settings every family shares: fields, defaults and checks.
 
-A scenario chooses its model class and its optimal-control solver (issue 19; the paper's
+A scenario chooses its model class and its optimal-control solver (the paper's
 guarantee holds for any model class with a no-regret learner and any optimal-control solver)::
 
     [model]    kind = "linear" | "features" | "mlp"
