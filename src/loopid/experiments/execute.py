@@ -213,8 +213,9 @@ def run_cells(
     its artifacts (:mod:`.artifacts`) before its rows; ``results.parquet`` is rewritten after
     every cell. ``lanes``: run the methods a family groups as lane sets (its ``lane_sets``) as
     one task per seed chunk, every (method, seed) pair a lane of one program (default: on an
-    accelerator, where width is nearly free; a CPU runs each method's seeds as one program,
-    which measured as fast or faster there); the table is the same either way.
+    accelerator, where width is nearly free; a CPU runs each method's seeds as one program:
+    there a lane set measured only 1.03x faster, ``benchmarks/lanes.py``, and its fewer, larger
+    tasks balance less evenly over the workers); the table is the same either way.
     """
     seeds = check_cells(scenarios, methods, seeds)
     check_executor(executor_name, ray_address)

@@ -1,0 +1,99 @@
+"""A panel's learning methods as one lane set against the same methods one at a time, in one run.
+
+The reference is today's default on a CPU: each of the seven learning methods (DAgger, Batch and
+Abbeel with each ν) as its own program over the seeds (:func:`loopid.algorithms.loop.
+run_learning`, the panel's one compiled cell). The other side is one lane set
+(:func:`loopid.algorithms.loop.run_lanes`): every (method, seed) pair a lane of one program,
+one call per iteration for all seven. Both run after their compilation (a first, untimed call
+each), on the same seeds and test noise, alternating ``--runs`` times; printed: min / median /
+max of each and the ratio of the medians (one at a time / lane set: above 1, the lane set is
+faster), and whether the traces are bit for bit the same (they must be).
+
+    .venv/bin/python benchmarks/lanes.py                     # hover and funnel, 10 seeds
+    .venv/bin/python benchmarks/lanes.py --panels hover --seeds 20 --runs 5
+
+On an accelerator, where width is nearly free, the lane set is the default of ``run_cells``.
+"""
+
+import argparse
+import statistics
+import time
+
+import jax
+import numpy as np
+
+import loopid
+from loopid.algorithms import methods as M
+from loopid.algorithms.loop import run_lanes, run_learning, seed_keys
+from loopid.experiments.families import helicopter as H
+from loopid.experiments.scenarios import scenario
+from loopid.exploration import NU_KINDS
+
+#: Iterations per panel: enough for the learning steps to dominate iteration 1's solve.
+ITERATIONS = {"hover": 8, "hover-delay": 8, "funnel": 5}
+
+
+def timed(f) -> tuple[float, object]:
+    t0 = time.perf_counter()
+    out = f()
+    return time.perf_counter() - t0, out
+
+
+def bench(name: str, seeds: int, runs: int) -> None:
+    s = scenario(name, seeds=seeds, iterations=ITERATIONS[name])
+    key = H.program_key(s)
+    plant, agent, (nus, cell) = H._setup(key).plant, H._agent(key), H._cell(key)
+    learning = [m for m in M.METHODS if m not in H.NOT_LANES]
+    schedules = [M.policy_fractions(m, s.iterations) for m in learning]
+    which = [NU_KINDS.index(M.nu_kind(m)) for m in learning]
+    ids = np.arange(seeds)
+    noise = cell.noise(seed_keys(ids))
+    options = dict(samples=s.samples, n_test=s.test_trajectories, mode=s.sampling, gamma=s.gamma,
+                   test_policy=s.test_policy, cell=cell, noise=noise)  # fmt: skip
+
+    def lanes():
+        return run_lanes(plant, agent, nus, schedules, ids, which=which, **options)
+
+    def one_at_a_time():
+        return [
+            run_learning(plant, agent, nus, f, ids, which=w, **options)
+            for f, w in zip(schedules, which, strict=True)
+        ]
+
+    lanes(), one_at_a_time()  # compile both
+    times: dict[str, list[float]] = {"one at a time": [], "lane set": []}
+    for _ in range(runs):
+        t, alone = timed(one_at_a_time)
+        times["one at a time"].append(t)
+        t, together = timed(lanes)
+        times["lane set"].append(t)
+    same = all(
+        np.array_equal(x, y, equal_nan=True)
+        for a, b in zip(alone, together, strict=True)
+        for x, y in zip(
+            jax.tree_util.tree_leaves((a.rows, a.final)),
+            jax.tree_util.tree_leaves((b.rows, b.final)),
+            strict=True,
+        )
+    )
+    print(f"{name}: 7 learning methods x {seeds} seeds x {s.iterations} iterations")
+    for side, ts in times.items():
+        print(f"  {side:14s} min {min(ts):7.2f} s  median {statistics.median(ts):7.2f} s  "
+              f"max {max(ts):7.2f} s")  # fmt: skip
+    ratio = statistics.median(times["one at a time"]) / statistics.median(times["lane set"])
+    print(f"  ratio (one at a time / lane set): {ratio:.3f}; bit for bit the same: {same}")
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--panels", default="hover,funnel")
+    parser.add_argument("--seeds", type=int, default=10)
+    parser.add_argument("--runs", type=int, default=3)
+    args = parser.parse_args()
+    print(f"loopid {loopid.__version__}, JAX {jax.__version__} on {jax.default_backend()}")
+    for name in args.panels.split(","):
+        bench(name, args.seeds, args.runs)
+
+
+if __name__ == "__main__":
+    main()
