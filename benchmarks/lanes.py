@@ -26,6 +26,7 @@ import loopid
 from loopid.algorithms import methods as M
 from loopid.algorithms.loop import run_lanes, run_learning, seed_keys
 from loopid.experiments.families import helicopter as H
+from loopid.experiments.families.helicopter import assembly
 from loopid.experiments.scenarios import scenario
 from loopid.exploration import NU_KINDS
 
@@ -42,7 +43,8 @@ def timed(f) -> tuple[float, object]:
 def bench(name: str, seeds: int, runs: int) -> None:
     s = scenario(name, seeds=seeds, iterations=ITERATIONS[name])
     key = H.program_key(s)
-    plant, agent, (nus, cell) = H._setup(key).plant, H._agent(key), H._cell(key)
+    plant, agent = assembly._setup(key).plant, assembly._agent(key)
+    nus, cell = assembly._cell(key)
     learning = [m for m in M.METHODS if m not in H.NOT_LANES]
     schedules = [M.policy_fractions(m, s.iterations) for m in learning]
     which = [NU_KINDS.index(M.nu_kind(m)) for m in learning]

@@ -64,5 +64,5 @@ def test_agents_are_assembled_in_one_place():
             "algorithms/gym_loop.py",
         }, (constructor, places)
         assert all(fn in ("make_agent", "gym_agent") for _, fn in places), (constructor, places)
-    for family in ("helicopter.py", "gym/agent.py"):
+    for family in ("helicopter/assembly.py", "gym/agent.py"):
         assert f"experiments/families/{family}" in _files(_calls("make_agent")), family

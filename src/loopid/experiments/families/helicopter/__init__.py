@@ -1,0 +1,92 @@
+"""The helicopter family: the paper's Figure 2 (its hover and funnel tasks and nine methods)
+through the one pipeline.
+
+Config: :class:`loopid.experiments.scenarios.Scenario` (the packaged panels ``hover``,
+``hover-delay`` and ``funnel``, every protocol setting a field). Methods: the paper's nine,
+:data:`loopid.algorithms.methods.METHODS`.
+
+For a scenario the family builds the plant (the JAX helicopter under the task:
+:func:`loopid.algorithms.helicopter_plant.helicopter_plant`), the linearised expert L, the
+initial model (:func:`loopid.algorithms.helicopter_plant.helicopter_nominal_model`), the
+model-based agent (linear offset model, FTRL, LQR) and the exploration distributions, once per
+compiled program (:mod:`loopid.experiments.families.helicopter.assembly`); then it runs a
+method on all seeds at once, or the learning methods as one lane set, the default on an
+accelerator (:mod:`loopid.experiments.families.helicopter.runs`, on
+:mod:`loopid.algorithms.loop`). Figure: the paper's Figure 2 (:mod:`loopid.experiments.plots`);
+report: the final costs with each panel's readings of the details the paper leaves open
+(:mod:`loopid.experiments.readings`), and the paper's five findings
+(:mod:`loopid.experiments.findings`); saved policies and models loaded, evaluated, flown and
+animated (:mod:`loopid.experiments.families.helicopter.saved`).
+"""
+
+from loopid.algorithms import helicopter_plant as core
+from loopid.algorithms import methods as M
+from loopid.experiments import model_planner
+from loopid.experiments.config import read_flat_file
+from loopid.experiments.families.base import Family
+from loopid.experiments.families.helicopter.assembly import Setup, agent, cell, program_key, setup
+from loopid.experiments.families.helicopter.runs import (
+    NOT_LANES,
+    lane_sets,
+    memory,
+    run,
+    run_lanes,
+    shared,
+)
+from loopid.experiments.families.helicopter.saved import (
+    animate,
+    evaluate,
+    figure,
+    load,
+    report,
+    trajectories,
+)
+from loopid.experiments.scenarios import FIELDS, SCENARIOS, Scenario, scenario
+
+#: Names this module offered that live in the core now
+#: (:mod:`loopid.algorithms.helicopter_plant`).
+_MOVED = {"helicopter_plant": "helicopter_plant", "nominal_model": "helicopter_nominal_model"}
+
+
+def __getattr__(name: str):
+    if name in _MOVED:
+        import warnings
+
+        new = f"loopid.algorithms.helicopter_plant.{_MOVED[name]}"
+        warnings.warn(
+            f"loopid.experiments.families.helicopter.{name} is now {new}; the old name goes in "
+            "the next release",
+            DeprecationWarning,
+            stacklevel=2,
+        )
+        return getattr(core, _MOVED[name])
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+
+
+FAMILY = Family(
+    name="helicopter",
+    config=Scenario,
+    methods=M.METHODS,
+    scenarios=SCENARIOS,
+    default_methods=lambda s: M.METHODS,
+    build=lambda name, fields: scenario(name, **fields),
+    read_file=lambda path: read_flat_file(path, FIELDS, tables=model_planner.TABLES),
+    run=run,
+    figure=figure,
+    report=report,
+    shared=shared,
+    load=load,
+    evaluate=evaluate,
+    trajectories=trajectories,
+    animate=animate,
+    memory=memory,
+    lane_sets=lane_sets,
+    run_lanes=run_lanes,
+)
+
+
+__all__ = [
+    "FAMILY", "NOT_LANES", "Setup", "agent", "animate", "cell", "evaluate", "figure", "lane_sets",
+    "load", "memory", "program_key", "report", "run", "run_lanes", "setup", "shared",
+    "trajectories",
+]  # fmt: skip

@@ -1,0 +1,118 @@
+"""Running a helicopter scenario's methods: one method on every seed (:func:`run`), or the
+learning methods as one lane set (:func:`run_lanes`), and their programs' memory."""
+
+import numpy as np
+
+from loopid.algorithms import methods as M
+from loopid.algorithms.loop import (
+    Trace,
+    at_least,
+    cell_memory,
+    run_fixed_policy,
+)
+from loopid.algorithms.loop import run_lanes as run_learning_lanes
+from loopid.algorithms.policy_gradient import run_policy_gradient
+from loopid.experiments.families.base import Progress
+from loopid.experiments.families.helicopter.assembly import (
+    _agent,
+    _cell,
+    _noise,
+    _setup,
+    program_key,
+    setup,
+)
+from loopid.experiments.scenarios import Scenario
+from loopid.exploration import NU_KINDS
+from loopid.systems.tasks import is_hover
+
+
+def run(method: str, s: Scenario, seeds=None, progress: Progress | None = None) -> Trace:
+    """Run ``method`` (:data:`loopid.algorithms.methods.METHODS`) on scenario ``s``.
+
+    ``seeds``: integer seeds (default ``range(s.seeds)``). Returns a :class:`Trace` with one row
+    per seed and iteration; ``progress(n, row)`` is called after every iteration.
+    """
+    M.check_method(method)
+    seeds = np.arange(s.seeds) if seeds is None else np.asarray(seeds)
+    return at_least(lambda padded: _run(method, s, padded, progress), seeds)
+
+
+def _run(method: str, s: Scenario, seeds: np.ndarray, progress: Progress | None) -> Trace:
+    key = program_key(s)
+    st = _setup(key)
+    noise = _noise(key, tuple(int(seed) for seed in seeds))
+    if method == "expert":
+        return run_fixed_policy(
+            st.plant, st.K_expert, seeds, iterations=s.iterations, samples=s.samples,
+            n_test=s.test_trajectories, progress=progress, noise=noise.test,
+        )  # fmt: skip
+    if method == "pg":
+        # hover: the trim-holding base flies π_1's test trajectories (π_1 never acts from μ);
+        # the funnel's π_1 acts, so its gains are the base there (policy_gradient docstring)
+        return run_policy_gradient(
+            st.plant, _agent(key), seeds, iterations=s.iterations, samples=s.samples,
+            n_test=s.test_trajectories, horizon=s.pg_horizon, sigma=s.pg_sigma, step=s.pg_step,
+            hold=is_hover(s.task), nu_state_var=s.nu_state_var, cost_cap=s.cost_cap,
+            samples_mode=s.pg_samples, update=s.pg_update, progress=progress, noise=noise.test,
+        )  # fmt: skip
+    return run_lanes((method,), s, seeds, progress, padded=True)[method]
+
+
+#: The methods that are not learning lanes: the fixed expert and the policy-gradient baseline.
+NOT_LANES = ("expert", "pg")
+
+
+def lane_sets(s: Scenario, methods) -> list[tuple[str, ...]]:
+    """The methods of ``methods`` grouped as they can run: the learning methods (DAgger, Batch
+    and Abbeel with any ν) as one lane set, the expert and the policy gradient alone."""
+    learning = tuple(m for m in methods if m not in NOT_LANES)
+    return ([learning] if learning else []) + [(m,) for m in methods if m in NOT_LANES]
+
+
+def run_lanes(
+    methods, s: Scenario, seeds=None, progress: Progress | None = None, *, padded: bool = False
+) -> dict[str, Trace]:
+    """Learning methods of scenario ``s`` as one lane set
+    (:func:`loopid.algorithms.loop.run_lanes`: every (method, seed) pair a lane of one
+    compiled program, the ν draws and test noise shared): ``{method: Trace}``, each the same
+    numbers as :func:`run` of that method. ``progress(n, row)``: the row's leaves ``[M·S]``.
+    ``padded``: the seeds are already at least :data:`~loopid.algorithms.loop.MIN_SEEDS`."""
+    for m in methods:
+        M.check_method(m)
+        if m in NOT_LANES:
+            raise ValueError(f"{m} is not a learning method; run it alone")
+    seeds = np.arange(s.seeds) if seeds is None else np.asarray(seeds)
+    if not padded:
+        return at_least(lambda pad: run_lanes(methods, s, pad, progress, padded=True), seeds)
+    key = program_key(s)
+    st = _setup(key)
+    nus, compiled = _cell(key)
+    schedules = [
+        M.policy_fractions(m, s.iterations, dagger_fraction=s.dagger_fraction) for m in methods
+    ]
+    traces = run_learning_lanes(
+        st.plant, _agent(key), nus, schedules, seeds, samples=s.samples,
+        n_test=s.test_trajectories, mode=s.sampling, gamma=s.gamma, test_policy=s.test_policy,
+        progress=progress, cell=compiled, which=[NU_KINDS.index(M.nu_kind(m)) for m in methods],
+        noise=_noise(key, tuple(int(seed) for seed in seeds)),
+    )  # fmt: skip
+    return dict(zip(methods, traces, strict=True))
+
+
+def memory(s: Scenario, method: str | tuple[str, ...], seeds: int) -> int:
+    """Peak bytes of the cell's programs for ``seeds`` seeds (of each method of a lane set)
+    (:func:`loopid.algorithms.loop.cell_memory`). The expert and the policy-gradient baseline
+    run the test-noise program and a test that reads it (plus, for PG, rollouts of one state per
+    probe), so the noise program is their peak."""
+    if isinstance(method, tuple):  # a lane set (run_lanes)
+        return cell_memory(_cell(program_key(s))[1], seeds, methods=len(method))
+    M.check_method(method)
+    return cell_memory(_cell(program_key(s))[1], seeds, test_only=method in NOT_LANES)
+
+
+def shared(s: Scenario, method: str) -> dict:
+    """What a learning cell's seeds share: the nominal model ``A``, ``B`` its offsets add to."""
+    if method in ("expert", "pg"):
+        return {}
+    nominal = setup(s).nominal
+    return {"A": np.asarray(nominal.A), "B": np.asarray(nominal.B)}

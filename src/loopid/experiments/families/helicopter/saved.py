@@ -1,0 +1,172 @@
+"""A helicopter run's outputs: its report sections and figure, and its saved policies and
+models loaded, evaluated on fresh noise, flown and animated."""
+
+from pathlib import Path
+
+import jax
+import numpy as np
+
+from loopid.algorithms import methods as M
+from loopid.algorithms.keys import TEST, stream_key
+from loopid.algorithms.loop import (
+    EVALUATE,
+    noise_program,
+    seed_keys,
+)
+from loopid.experiments import model_planner
+from loopid.experiments.families.helicopter.assembly import (
+    _model,
+    _mpc,
+    _replanner,
+    program_key,
+    setup,
+)
+from loopid.experiments.findings import findings_section
+from loopid.experiments.report import final_cost_sections
+from loopid.experiments.scenarios import Scenario, readings_line
+from loopid.models.linear_offset import LinearOffsetModel
+from loopid.systems import helicopter
+from loopid.systems.tasks import is_hover
+
+
+def report(table, configs: dict[str, Scenario]) -> list[str]:
+    """The final costs per panel, each with its readings (:mod:`loopid.experiments.readings`),
+    and the five findings."""
+    notes = {
+        name: f"Readings: {readings_line(s)}."
+        + ("" if model_planner.is_default(s) else f" {model_planner.describe(s)}")
+        for name, s in configs.items()
+    }
+    hover = {name for name, s in configs.items() if is_hover(s.task)}
+    return [*final_cost_sections(table, notes), *findings_section(table, hover)]
+
+
+def figure(table, path, configs) -> None:
+    """The paper's Figure 2 (:func:`loopid.experiments.plots.figure`)."""
+    from loopid.experiments.plots import figure as figure2
+
+    figure2(table, path)
+
+
+def load(s: Scenario, method: str, arrays: dict):
+    """One seed's saved model and controller (:mod:`loopid.experiments.saved`): the gains act on
+    ``to_error(x_t, x*_t)`` and give the control change Δu (the Gymnasium envs' action); where
+    the cell flew MPC, the controller re-plans on the saved model
+    (:class:`~loopid.experiments.learned.ReplanningController`)."""
+    from loopid.experiments.learned import (
+        FeatureModel,
+        GainController,
+        LinearModel,
+        ReplanningController,
+    )
+
+    st = setup(s)
+    target = np.asarray(st.plant.task.target)
+    T = target.shape[0] - 1
+
+    def error(x, t):
+        return np.asarray(helicopter.to_error(x, target[min(t, T)]))
+
+    delay = st.plant.task.delay if s.delay_mode == "latency" else 0
+    controller = GainController(arrays["K"], error, np.zeros(helicopter.N_ACTION), delay)
+    if _flew_mpc(s, arrays):
+        key = program_key(s)
+        params = _model(key).restore(arrays)
+        zero = np.zeros(helicopter.N_ACTION)
+        controller = ReplanningController(_replanner(key), params, error, zero, helicopter.N_STATE)
+    model = None  # the MLP's network is saved (mlp.*) but not rebuilt here
+    if "W" in arrays or "W_features" in arrays:  # the saved nominal, else the scenario's
+        A, B = arrays.get("shared.A", st.nominal.A), arrays.get("shared.B", st.nominal.B)
+        nominal = LinearOffsetModel(np.asarray(A), np.asarray(B))
+        if "W" in arrays:
+            model = LinearModel(nominal, arrays["W"])
+        else:
+            fmap = model_planner.feature_map(s, nominal.n, nominal.m)
+            model = FeatureModel(nominal, fmap, arrays["W_features"])
+    return model, controller
+
+
+def evaluate(s: Scenario, arrays: dict, seeds, episodes: int, env=None) -> np.ndarray:
+    """Capped test costs ``[S, episodes]`` of the saved policies on fresh noise (the stream
+    :data:`~loopid.algorithms.keys.EVALUATE`), flown as the run flew them (its delay reading
+    included): the gains ``arrays["K"] [S, T, m, n]``, or under ``planner_kind = "mpc"`` MPC
+    re-planning on each seed's saved model."""
+    if env is not None:
+        raise ValueError(f"--env {env!r} applies to gym runs, not to {s.name}")
+    plant, policy = setup(s).plant, jax.numpy.asarray(arrays["K"])
+    if _flew_mpc(s, arrays):
+        from loopid.algorithms.planning_agent import restore_seeds
+
+        plant = _mpc(program_key(s))[0].plant
+        policy = restore_seeds(_model(program_key(s)), arrays)
+    noise = noise_program(plant, episodes, "last", EVALUATE)(seed_keys(seeds)).test
+    costs, _ = jax.jit(plant.eval_seeds)(policy, noise)
+    return np.asarray(costs)
+
+
+def _flew_mpc(s: Scenario, arrays: dict) -> bool:
+    """Whether the cell whose saved arrays these are flew MPC: ``planner_kind = "mpc"`` and a
+    learned model saved (the expert and the policy-gradient baseline fly gains)."""
+    from loopid.algorithms.planning_agent import holds_model
+
+    return s.planner_kind == "mpc" and holds_model(arrays)
+
+
+def _flights(run_dir, s: Scenario, methods, seed: int) -> dict:
+    """``{method: X [T+1, 21]}``: each method's saved final policy at ``seed`` flying the run's
+    first test trajectory of that seed (its noise), from the task's start (MPC re-planning on
+    the saved model where the run flew MPC)."""
+    from loopid.experiments import artifacts
+    from loopid.experiments.flights import fly
+
+    plant = setup(s).plant
+    key = stream_key(jax.random.key(int(seed)), TEST)  # the loop's test noise
+    noise = plant.eval_noise(key, 1)[0]
+    flights = {}
+    for m in methods:
+        _, arrays = artifacts.read(Path(run_dir) / "cells", s.name, m)
+        one = artifacts.for_seed(arrays, seed, f"{s.name}/{m}")
+        if _flew_mpc(s, one):
+            params = _model(program_key(s)).restore(one)
+            flights[m] = np.asarray(jax.jit(_mpc(program_key(s))[0].flight)(params, noise)[0])
+        else:
+            flights[m] = fly(plant.task, one["K"], noise, s.delay_mode)
+    return flights
+
+
+def _saved_methods(run_dir, name: str) -> list[str]:
+    found = sorted(
+        p.stem.split("__", 1)[1] for p in (Path(run_dir) / "cells").glob(f"{name}__*.json")
+    )
+    return [m for m in M.METHODS if m in found]
+
+
+def trajectories(run_dir, configs: dict[str, Scenario], path) -> None:
+    """``trajectories.png``: per panel, what each method's final policy flies at the first
+    seed (:mod:`loopid.experiments.flights`)."""
+    from loopid.experiments import artifacts
+    from loopid.experiments.flights import trajectories_figure
+
+    panels = []
+    for name, s in configs.items():
+        methods = _saved_methods(run_dir, name)
+        if methods:
+            info, _ = artifacts.read(Path(run_dir) / "cells", name, methods[0])
+            seed = info["seeds"][0]
+            flights = _flights(run_dir, s, methods, seed)
+            panels.append((setup(s).plant.task, flights, f"{name}, seed {seed}"))
+    if panels:
+        trajectories_figure(panels, path)
+
+
+def animate(run_dir, s: Scenario, methods, seed: int, path) -> None:
+    """An animated GIF of the methods' saved final policies flying scenario ``s`` at ``seed``."""
+    from loopid.experiments.flights import animate as animate_flights
+
+    saved = _saved_methods(run_dir, s.name)
+    for m in methods:
+        if m not in saved:
+            raise ValueError(
+                f"{s.name} has no saved policy of method {m!r}; it has {', '.join(saved)}"
+            )
+    animate_flights(setup(s).plant.task, _flights(run_dir, s, methods, seed), path)
