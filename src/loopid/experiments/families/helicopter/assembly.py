@@ -58,7 +58,8 @@ def _setup(key: Scenario) -> Setup:
 
 
 def setup(s: Scenario) -> Setup:
-    """The shared :class:`Setup` of a scenario (cached: the expert is computed once)."""
+    """The shared :class:`~loopid.experiments.families.helicopter.assembly.Setup` of a
+    scenario (cached: the expert is computed once)."""
     return _setup(program_key(s))
 
 

@@ -29,8 +29,9 @@ from loopid.systems.tasks import is_hover
 def run(method: str, s: Scenario, seeds=None, progress: Progress | None = None) -> Trace:
     """Run ``method`` (:data:`loopid.algorithms.methods.METHODS`) on scenario ``s``.
 
-    ``seeds``: integer seeds (default ``range(s.seeds)``). Returns a :class:`Trace` with one row
-    per seed and iteration; ``progress(n, row)`` is called after every iteration.
+    ``seeds``: integer seeds (default ``range(s.seeds)``). Returns a
+    :class:`~loopid.algorithms.loop.Trace` with one row per seed and iteration;
+    ``progress(n, row)`` is called after every iteration.
     """
     M.check_method(method)
     seeds = np.arange(s.seeds) if seeds is None else np.asarray(seeds)
