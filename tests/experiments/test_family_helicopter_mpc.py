@@ -10,6 +10,7 @@ import pytest
 from loopid.algorithms.loop import EVALUATE, seed_keys, trajectory_mean
 from loopid.algorithms.plant import quadratic_form
 from loopid.experiments.families import helicopter as family
+from loopid.experiments.families.helicopter import assembly
 from loopid.experiments.scenarios import scenario
 from loopid.systems import helicopter
 
@@ -28,8 +29,8 @@ def test_the_cell_flies_mpc_on_each_seeds_model():
     assert np.all(np.isfinite(trace.rows.test_cost))
     assert trace.final["K"].shape == (3, 400, 4, 21)
     key = family.program_key(s)
-    plant = family._mpc(key)[0].plant
-    noise = family._cell(key)[1].noise(seed_keys(np.arange(3))).test
+    plant = assembly._mpc(key)[0].plant
+    noise = assembly._cell(key)[1].noise(seed_keys(np.arange(3))).test
     costs, _ = jax.jit(plant.eval_seeds)(jnp.asarray(trace.final["W_features"]), noise)
     np.testing.assert_allclose(trajectory_mean(costs), trace.rows.test_cost[:, -1], rtol=1e-9)
 
@@ -39,8 +40,8 @@ def test_the_cell_flies_mpc_on_each_seeds_model():
     saved = {k: np.asarray(v) for k, v in trace.final.items()}
     evaluated = family.evaluate(s, saved, np.arange(3), 2)
     w = plant.eval_noise(jax.random.fold_in(jax.random.key(0), EVALUATE), 2)[0]
-    W0 = family._model(key).restore({"W_features": saved["W_features"][0]})
-    X, total = jax.jit(family._mpc(key)[0].flight)(W0, w)
+    W0 = assembly._model(key).restore({"W_features": saved["W_features"][0]})
+    X, total = jax.jit(assembly._mpc(key)[0].flight)(W0, w)
     assert X.shape == (401, 21)
     np.testing.assert_allclose(evaluated[0, 0], min(float(total), s.cost_cap), rtol=1e-9)
     gains = family.evaluate(s, {"K": saved["K"]}, np.arange(3), 2)
