@@ -56,26 +56,12 @@ def lanes():
     return run, alone
 
 
-#: The MDP plant's exact test cost is a vmapped linear solve, whose last bit depends on how many
-#: policies it solves at once (a lane set solves M·S of them): 1e-12 relative there, every
-#: other number bit for bit. (The helicopter's tests, a scan per trajectory, are bit for bit:
-#: ``tests/experiments/test_lane_sets.py``.)
-WIDTH_DEPENDENT = ("test_cost", "test_cost_median")
-
-
 def _assert_same(a, b, what):
-    for field in a.rows._fields:
-        x, y = getattr(a.rows, field), getattr(b.rows, field)
-        if field in WIDTH_DEPENDENT:
-            np.testing.assert_allclose(x, y, rtol=1e-12, atol=0, err_msg=f"{what} {field}")
-        else:
-            for u, v in zip(
-                jax.tree_util.tree_leaves(x), jax.tree_util.tree_leaves(y), strict=True
-            ):
-                np.testing.assert_array_equal(u, v, err_msg=f"{what} {field}")
-    assert a.final.keys() == b.final.keys()
-    for k in a.final:
-        np.testing.assert_array_equal(a.final[k], b.final[k], err_msg=f"{what} {k}")
+    leaves_a = jax.tree_util.tree_leaves((a.rows, a.final))
+    leaves_b = jax.tree_util.tree_leaves((b.rows, b.final))
+    assert len(leaves_a) == len(leaves_b)
+    for x, y in zip(leaves_a, leaves_b, strict=True):
+        np.testing.assert_array_equal(x, y, err_msg=str(what))
 
 
 def test_a_lane_set_equals_each_method_alone(lanes):

@@ -99,8 +99,11 @@ class MDPPlant(NamedTuple):
 
     def eval_seeds(self, K: jax.Array, noise: jax.Array) -> tuple[jax.Array, jax.Array]:
         """:meth:`eval_costs` of every seed: ``K [S, …]``, ``noise [1, S, n_test]`` (the column
-        layout of :meth:`loopid.algorithms.plant.Plant.eval_seeds`)."""
-        J = jax.vmap(lambda k: self.eval_one(k, noise[:, 0, 0])[0])(K)
+        layout of :meth:`loopid.algorithms.plant.Plant.eval_seeds`). The seeds are evaluated in
+        turn (``lax.map``), so a seed's exact cost has the same bits however many seeds are
+        evaluated beside it (a ``vmap``'s batched linear solve changed its last bit with the
+        batch)."""
+        J = jax.lax.map(lambda k: self.eval_one(k, noise[:, 0, 0])[0], K)
         return jnp.broadcast_to(J[:, None], noise.shape[1:]), jnp.zeros(noise.shape[1:], bool)
 
 
