@@ -200,16 +200,15 @@ def _evaluate(
     """Test every lane's policy ``K [L, horizon, m, n]`` (``flown``: what the plant flies in its
     place, a controller's policies of every lane) on its noise (:func:`lane_noise`); returns
     (costs [L, n_test], diverged [L, n_test], new carry). ``keys [L]``: each lane's seed key."""
-    eval_seeds = plant.eval_seeds
     carry = carry._replace(K=K)
     if test_policy == "last":
-        costs, div = eval_seeds(K if flown is None else flown, noise.test)
+        costs, div = plant.eval_seeds(K if flown is None else flown, noise.test)
     elif test_policy == "best":
-        score = trajectory_mean(eval_seeds(K, noise.select)[0])
+        score = trajectory_mean(plant.eval_seeds(K, noise.select)[0])
         better = score < carry.best_cost
         best_K = jnp.where(better[:, None, None, None], K, carry.best_K)
         carry = carry._replace(best_K=best_K, best_cost=jnp.minimum(score, carry.best_cost))
-        costs, div = eval_seeds(best_K, noise.test)
+        costs, div = plant.eval_seeds(best_K, noise.test)
     else:  # the uniform mixture: one of π_1..π_n drawn per test trajectory
         history = carry.history.at[:, n - 1].set(K)
         carry = carry._replace(history=history)
@@ -355,8 +354,7 @@ def make_cell(
         skipped (a ``cond`` on ``n``, so only the taken branch runs) and its statistics are
         zeros."""
         p, which = jnp.atleast_1d(p), jnp.atleast_1d(which)
-        methods = p.shape[0]
-        lane_keys = jnp.concatenate([keys] * methods) if methods > 1 else keys
+        lane_keys = _lane_keys(keys, p.shape[0])
         lane_p = jnp.repeat(p, keys.shape[0])
         args = (carry, keys, lane_keys, n, lane_p, which)
         carry, stats = jax.lax.cond(n > 1, learn_lanes, skip, *args)
@@ -369,11 +367,20 @@ def make_cell(
     def start(keys, noise, methods: int = 1):
         """Iteration 1 of ``methods`` methods' lanes (``noise``: the lanes' :func:`lane_noise`):
         the initial model solved and tested (the same compiled ``step``)."""
-        lane_keys = jnp.concatenate([keys] * methods) if methods > 1 else keys
-        zeros = (jnp.zeros(methods), jnp.zeros(methods, jnp.int32))
-        return step(init(lane_keys), keys, noise, jnp.int32(1), *zeros)
+        return step(init(_lane_keys(keys, methods)), keys, noise, *_first_iteration(methods))
 
     return Cell(start, step, noise_program(plant, n_test, test_policy))
+
+
+def _lane_keys(keys: jax.Array, methods: int) -> jax.Array:
+    """Each lane's seed key, ``[M·S]`` method-major, from the seeds' ``keys [S]``."""
+    return jnp.concatenate([keys] * methods) if methods > 1 else keys
+
+
+def _first_iteration(methods: int) -> tuple:
+    """``(n, p, which)`` of iteration 1 for ``methods`` methods (``p`` and ``which`` unused
+    there: iteration 1 collects nothing)."""
+    return jnp.int32(1), jnp.zeros(methods), jnp.zeros(methods, jnp.int32)
 
 
 def program_bytes(compiled) -> int:
@@ -402,8 +409,7 @@ def cell_memory(cell: Cell, seeds: int, *, test_only: bool = False, methods: int
         return peak
     noise = jax.eval_shape(lambda w: lane_noise(w, methods), noise)
     carry = jax.eval_shape(lambda k, w: cell.start(k, w, methods)[0], keys, noise)
-    zeros = (jnp.zeros(methods), jnp.zeros(methods, jnp.int32))
-    args = (carry, keys, noise, jnp.int32(1), *zeros)
+    args = (carry, keys, noise, *_first_iteration(methods))
     return max(peak, program_bytes(cell.step.lower(*args).compile()))
 
 
@@ -499,6 +505,7 @@ def run_lanes(
         final["best_K"] = carry.best_K
     if test_policy == "mixture":
         final["history"] = carry.history
+    rows, final = jax.device_get((rows, final))  # to NumPy once, then each method's a view
     S = len(keys)
     return [
         _trace(

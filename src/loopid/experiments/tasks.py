@@ -55,7 +55,7 @@ def plan(rd: RunDir, todo, seeds: np.ndarray, family: Family, groups=None) -> li
         (s.name, m): tuple(chunks.ChunkFiles(rd.cells, s.name, m).missing(len(seeds)))
         for s, m in todo
     }
-    tasks = [(s, m) for s, m in todo]
+    tasks = list(todo)
     if groups is not None:
         configs = {s.name: s for s, _ in todo}
         tasks = []
