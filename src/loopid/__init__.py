@@ -5,8 +5,9 @@ Model-Based Reinforcement Learning": fit a model of a real system, synthesise a 
 it, run the controller on the system, add what it saw to the data, repeat.
 
 Importing loopid turns on JAX float64 (every hot path is float64), keeps JAX from
-preallocating most of a GPU's memory (``XLA_PYTHON_CLIENT_PREALLOCATE=false`` unless set), and
-registers the helicopter tasks as Gymnasium environments (``loopid/HelicopterHover-v0``,
+preallocating most of a GPU's memory (``XLA_PYTHON_CLIENT_PREALLOCATE=false`` unless set), runs
+the BLAS and LAPACK libraries of this process (those behind JAX's CPU linear algebra among them)
+on one thread, and registers the helicopter tasks as Gymnasium environments (``loopid/HelicopterHover-v0``,
 ``loopid/HelicopterHoverDelay-v0``, ``loopid/HelicopterFunnel-v0``).
 """
 
@@ -19,8 +20,16 @@ from importlib.metadata import PackageNotFoundError, version
 os.environ.setdefault("XLA_PYTHON_CLIENT_PREALLOCATE", "false")
 
 import jax
+import scipy.linalg  # noqa: F401  (the LAPACK that JAX's CPU linear algebra calls, loaded now)
+from threadpoolctl import threadpool_limits
 
 jax.config.update("jax_enable_x64", True)
+
+# One BLAS thread: a multi-threaded LAPACK call (a least-squares solve, say) can round
+# differently with its number of threads, which follows the cores the process may use. With
+# one, a table has the same bits on any number of cores and in any worker, pinned or not; the
+# matrices here are small (at most a few hundred rows), where threads gain little.
+threadpool_limits(limits=1, user_api="blas")
 
 try:
     #: The installed version of loopid (``0.0.0+unknown`` in a source tree without an install).

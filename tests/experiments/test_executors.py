@@ -11,7 +11,7 @@ import numpy as np
 import pyarrow as pa
 import pytest
 
-from loopid.experiments.executors import Job, check_workers, run_local, spread
+from loopid.experiments.executors import Job, check_workers, core_shares, run_local, spread
 from loopid.experiments.scenarios import scenario
 
 
@@ -22,7 +22,11 @@ def fake_cell(s, method, seeds, progress=None):
     for n in range(1, s.iterations + 1):
         if progress is not None:
             progress(n, {"n": np.asarray(n)})
-    return pa.table({"cell": [f"{s.name}/{method}"], "pid": [os.getpid()], "seeds": [len(seeds)]})
+    cores = sorted(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else []
+    return pa.table(
+        {"cell": [f"{s.name}/{method}"], "pid": [os.getpid()], "seeds": [len(seeds)],
+         "cores": [cores]}
+    )  # fmt: skip
 
 
 def jobs(methods=("a", "b", "c"), iterations=3, seeds=(0, 1)):
@@ -71,6 +75,28 @@ def test_workers_compute_every_cell_once_with_its_progress():
         assert seen[(job.scenario.name, job.method)] == [(n, n) for n in (1, 2, 3)]
     pids = {table.column("pid")[0].as_py() for _, table in done}
     assert os.getpid() not in pids and 1 <= len(pids) <= 2
+    if hasattr(os, "sched_getaffinity") and len(os.sched_getaffinity(0)) >= 2:
+        # each worker ran on its own cores: the processes' core sets are disjoint
+        cores = {t.column("pid")[0].as_py(): set(t.column("cores")[0].as_py()) for _, t in done}
+        sets = list(cores.values())
+        assert all(a.isdisjoint(b) for i, a in enumerate(sets) for b in sets[i + 1 :])
+        assert set().union(*sets) <= os.sched_getaffinity(0)
+
+
+@pytest.mark.skipif(not hasattr(os, "sched_setaffinity"), reason="no CPU affinity here")
+@pytest.mark.parametrize("workers", [1, 2, 3, 4, 6, 7, 9])
+def test_core_shares_deal_the_cores_out_evenly(workers):
+    cores = {0, 2, 3, 5, 8, 9}
+    shares = core_shares(workers, cores)
+    assert len(shares) == workers
+    if workers <= len(cores):  # disjoint, every core used, sizes within one
+        flat = [c for share in shares for c in share]
+        assert sorted(flat) == sorted(cores)
+        assert max(map(len, shares)) - min(map(len, shares)) <= 1
+    else:  # one core each, every core used as evenly as it can be
+        assert all(len(share) == 1 for share in shares)
+        counts = [sum(share == (c,) for share in shares) for c in cores]
+        assert max(counts) - min(counts) <= 1
 
 
 def test_one_worker_runs_in_this_process():

@@ -7,11 +7,13 @@ rounding).
   share a compiled program (DAgger, Batch and Abbeel with the same scenario and ν) reuse it.
   ``workers > 1``: that many worker processes (standard library ``concurrent.futures``, spawned),
   each running one cell at a time, in the order of :func:`spread`; a worker that meets a program
-  another one already compiled loads it from the shared persistent cache. One XLA CPU process
-  keeps about 1.5 of 2 cores busy, and two share the cores' caches: on 2 cores two workers
-  finish about as soon as one (the hover-delay panel: 98 s with two, 93 s with one), and
-  compilation-bound runs (``--quick``) gain nothing; more cores gain more. On an accelerator,
-  one worker per device (:mod:`loopid.experiments.backend`).
+  another one already compiled loads it from the shared persistent cache. On a CPU each worker
+  is pinned to its own share of the cores (:func:`core_shares`), so that the XLA threads of one
+  do not take turns with another's (the funnel's policy gradient on 2 cores, two workers: 47 s
+  pinned, 52 s not). Each process's BLAS runs on one thread (:mod:`loopid`): with a BLAS thread
+  pool per process, whose threads spin while they wait, two workers on two cores slowed each
+  other down 4-5x (the same cell: 150 s). On an accelerator, one worker per device
+  (:mod:`loopid.experiments.backend`).
   (Cells on several threads of one process were tried and dropped: concurrent executions on
   XLA's CPU client deadlock when its thread pool is as small as the machine's two cores.)
 - ``ray`` (extra ``[ray]``): each cell is one Ray task (``num_cpus=1``, and ``num_gpus=1`` on a
@@ -167,14 +169,32 @@ def spread(jobs: Sequence[Job]) -> list[int]:
 _WORKER: dict = {}
 
 
-def _init_worker(cache_dir: str, messages, parent: int, devices=None, platform="cpu") -> None:
+def core_shares(workers: int, cores=None) -> list[tuple[int, ...]]:
+    """The CPU cores each of ``workers`` processes may run on: ``cores`` (default: those this
+    process may use) dealt out in turn, so that the shares are disjoint and differ in size by at
+    most one; with more workers than cores, one core each, in turn. ``[]`` where the system
+    cannot pin a process (no ``os.sched_setaffinity``)."""
+    if not hasattr(os, "sched_setaffinity"):
+        return []
+    cores = sorted(os.sched_getaffinity(0) if cores is None else cores)
+    if workers >= len(cores):
+        return [(cores[i % len(cores)],) for i in range(workers)]
+    return [tuple(cores[i::workers]) for i in range(workers)]
+
+
+def _init_worker(
+    cache_dir: str, messages, parent: int, devices=None, platform="cpu", cores=None
+) -> None:
     """Worker process start: on an accelerator its own device (taken from the ``devices``
-    queue); float64 and the shared compile cache on; exit with the parent (a killed run must
-    not leave workers computing cells nobody will save)."""
+    queue), on a CPU its own cores (from the ``cores`` queue, before XLA starts its threads);
+    float64 and the shared compile cache on; exit with the parent (a killed run must not leave
+    workers computing cells nobody will save)."""
     if devices is not None:
         from loopid.experiments.backend import pin_device
 
         pin_device(platform, devices.get())
+    if cores is not None:
+        os.sched_setaffinity(0, cores.get())
     import loopid  # noqa: F401  (float64 on)
 
     compile_cache(cache_dir)
@@ -268,14 +288,18 @@ def _run_pool(jobs, cell, on_job, workers) -> Iterator[tuple[Job, Any]]:
 
     from loopid.experiments import backend
 
-    devices = None
+    devices = cores = None
     if backend.accelerator():  # one device each
         devices = ctx.Queue()
         for index in range(workers):
             devices.put(index)
+    elif shares := core_shares(workers):  # cores of its own each (module docstring)
+        cores = ctx.Queue()
+        for share in shares:
+            cores.put(share)
     pool = ProcessPoolExecutor(
         workers, mp_context=ctx, initializer=_init_worker,
-        initargs=(cache_dir, messages, os.getpid(), devices, backend.name()),
+        initargs=(cache_dir, messages, os.getpid(), devices, backend.name(), cores),
     )  # fmt: skip
     try:
         futures = {
