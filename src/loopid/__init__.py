@@ -7,8 +7,9 @@ it, run the controller on the system, add what it saw to the data, repeat.
 Importing loopid turns on JAX float64 (every hot path is float64), keeps JAX from
 preallocating most of a GPU's memory (``XLA_PYTHON_CLIENT_PREALLOCATE=false`` unless set), runs
 the BLAS and LAPACK libraries of this process (those behind JAX's CPU linear algebra among them)
-on one thread, and registers the helicopter tasks as Gymnasium environments (``loopid/HelicopterHover-v0``,
-``loopid/HelicopterHoverDelay-v0``, ``loopid/HelicopterFunnel-v0``).
+on one thread, and registers the helicopter tasks as Gymnasium environments
+(``loopid/HelicopterHover-v0``, ``loopid/HelicopterHoverDelay-v0``,
+``loopid/HelicopterFunnel-v0``).
 """
 
 import os
