@@ -107,3 +107,15 @@ def test_export_refuses_a_bad_round_and_format(started, capsys):
     code, err = loopid(capsys, "round", "export", root, "--format", "pdf")
     assert code == 2 and "--format must be one of json, npz, c, got 'pdf'" in err
     assert snapshot(root) == before
+
+
+def test_mpc_controller_is_not_exported_as_c(tmp_path, capsys):
+    model = 'kind = "features"\ndegree = 2\n[planner]\nkind = "mpc"\nhorizon = 5\niterations = 3'
+    root = tmp_path / "dir"
+    rounds.init(root, write_config(tmp_path / "c.toml", model=model))
+    before = snapshot(root)
+    code, err = loopid(capsys, "round", "export", root, "--format", "c")
+    assert code == 2 and err.count("\n") == 1
+    assert "controller 1 plans online (MPC on the learned model): it has no gains" in err
+    assert snapshot(root) == before
+    assert rounds.export(root, "json").is_file()

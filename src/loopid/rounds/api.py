@@ -179,6 +179,8 @@ def controller(root, n: int | None = None) -> Any:
     arrays = controller_arrays(root, n)
     if str(arrays["kind"]) != "mpc":
         return Controller(arrays)
+    from loopid.algorithms.planning_agent import restore_seeds
+
     compiled = _agent(load_config(root))
-    params = {k[len("model_") :]: v[None] for k, v in arrays.items() if k.startswith("model_")}
-    return compiled.mpc(params)
+    saved = {k[len("model_") :]: v[None] for k, v in arrays.items() if k.startswith("model_")}
+    return compiled.mpc(restore_seeds(compiled.model, saved))
