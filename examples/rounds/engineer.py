@@ -9,6 +9,7 @@ for whole episodes and read the log, as a person at a test bench would. Each rou
 3. calls ``loopid round update`` (the Python API, or the command with ``--cli``),
 
 and prints each controller's cost on the rig. Run:  python examples/rounds/engineer.py [--cli]
+(``--config examples/rounds/rig_features.toml``: the richer model class ``round.md`` suggests).
 """
 
 import argparse
@@ -84,12 +85,13 @@ def main(argv=None) -> list[float]:
     parser.add_argument("--rounds", type=int, default=6)
     parser.add_argument("--cli", action="store_true", help="call the loopid command")
     parser.add_argument("--dir", type=Path, default=None, help="round directory (default: temp)")
+    parser.add_argument("--config", type=Path, default=HERE / "rig.toml", help="round config")
     args = parser.parse_args(argv)
     root = args.dir or Path(tempfile.mkdtemp()) / "rig"
     if root.exists():
         shutil.rmtree(root)
-    rounds.init(root, HERE / "rig.toml")
-    config = rounds.read_config(HERE / "rig.toml")
+    rounds.init(root, args.config)
+    config = rounds.read_config(args.config)
     rig, rng = Rig(seed=0), np.random.default_rng(1)
     test = Rig(seed=2)  # the same 20 test episodes for every controller
     costs = []
