@@ -34,11 +34,10 @@ from loopid.experiments.config import (
     check_int,
     check_number,
     freeze,
-    read_toml,
     thaw,
 )
 from loopid.experiments.families.gym.env import EnvShape
-from loopid.experiments.families.gym.scenario import METHODS
+from loopid.experiments.families.gym.scenario import METHODS, check_model, read_file
 from loopid.experiments.families.gym.scenario import TABLES as GYM_TABLES
 
 
@@ -136,18 +135,10 @@ def validate(c: RoundsConfig) -> None:
     check_int("horizon", c.horizon)
     if c.action_limit is not None:
         check_number("action_limit", c.action_limit, 0.0, open_low=True)
-    if not isinstance(c.time_varying, bool):
-        raise ValueError(f"time_varying must be true or false, got {c.time_varying!r}")
-    check_number("ftrl_lambda", c.ftrl_lambda, 0.0)
     check_int("samples", c.samples)
     check_choice("method", c.method, METHODS)
     check_number("dagger_fraction", c.dagger_fraction, 0.0, 1.0)
-    model_planner.validate(c, c.horizon)
-    if c.time_varying and c.model_kind != "linear":
-        raise ValueError(
-            f"time_varying applies to the linear model; model_kind {c.model_kind!r} learns one "
-            "model for every step"
-        )
+    check_model(c, c.horizon)
 
 
 SYSTEM_KEYS = ("states", "actions", "target", "action_op", "horizon", "action_limit", "A", "B")
@@ -164,26 +155,9 @@ _REQUIRED = {"system": ("states", "actions", "target"), "cost": ("Q", "R")}
 
 def read_config(path) -> RoundsConfig:
     """The :class:`RoundsConfig` of a TOML file; one-line ``ValueError`` naming an unknown or
-    missing table or key, or a bad value."""
-    raw = read_toml(path)
-    where = f"--config {str(path)!r}"
-    out: dict = {}
-    for table, given in raw.items():
-        if table not in TABLES:
-            raise ValueError(f"{where}: unknown table [{table}]; allowed: {', '.join(TABLES)}")
-        if not isinstance(given, dict):
-            raise ValueError(f"{where}: {table} must be a table, got {given!r}")
-        for key, value in given.items():
-            if key not in TABLES[table]:
-                raise ValueError(
-                    f"{where}: unknown key {table}.{key}; allowed: {', '.join(TABLES[table])}"
-                )
-            out[TABLES[table][key]] = value
-    for table, keys in _REQUIRED.items():
-        for key in keys:
-            if key not in raw.get(table, {}):
-                raise ValueError(f"{where}: missing key {table}.{key}")
+    missing table or key (the gym family's reader, with this format's tables), or a bad value."""
+    out, _ = read_file(path, TABLES, _REQUIRED)
     try:
         return RoundsConfig(**out)
     except (ValueError, TypeError) as err:
-        raise ValueError(f"{where}: {str(err).splitlines()[0]}") from None
+        raise ValueError(f"--config {str(path)!r}: {str(err).splitlines()[0]}") from None
