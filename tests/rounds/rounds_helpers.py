@@ -28,11 +28,13 @@ lambda = 0.01
 {model}
 [rounds]
 samples = {samples}
+{rounds}
 """
 
 
-def write_config(path, *, samples=40, system="", model="") -> str:
-    path.write_text(CONFIG.format(samples=samples, system=system, model=model))
+def write_config(path, *, samples=40, system="", model="", rounds="") -> str:
+    """The config file at ``path``; the keyword arguments add lines to their tables."""
+    path.write_text(CONFIG.format(samples=samples, system=system, model=model, rounds=rounds))
     return str(path)
 
 

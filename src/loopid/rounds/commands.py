@@ -42,9 +42,11 @@ def update(
 
     done = rounds.update(root, file)
     r = done.row
+    before = [f"{r[k]:.4g} on {w} rows" for k, w in (("loss_nu", "nu"), ("loss_policy", "policy"))
+              if r[k] is not None]  # fmt: skip
     typer.echo(
-        f"controller {done.round}: loss before the update {r['loss_nu']:.4g} on nu rows, "
-        f"{r['loss_policy']:.4g} on policy rows; {r['loss_all']:.4g} on all data after it"
+        f"controller {done.round}: loss before the update {', '.join(before)}; "
+        f"{r['loss_all']:.4g} on all data after it"
     )
     typer.echo(f"wrote {root / 'round.md'}", err=True)
 

@@ -9,7 +9,8 @@ Each update records one row of diagnostics (:func:`row`), all mean squared one-s
 errors ``‖Δx' − f̂(Δx, Δu)‖²`` in the state's units squared:
 
 - ``loss_nu``, ``loss_policy``: the model's loss, before the update, on the round's ν rows and
-  policy rows. A policy loss well above the ν loss is the train/test mismatch DAgger corrects.
+  policy rows (None when there were none). A policy loss well above the ν loss is the
+  train/test mismatch DAgger corrects.
 - ``loss_all``: the new model's loss on every row so far (the aggregate dataset), and
   ``relative``: that loss over the mean ``‖o' − o‖²`` of those rows (the loss of a model that
   predicts no change).
@@ -50,10 +51,14 @@ def row(config: RoundsConfig, n: int, data, **losses) -> dict:
     cost = design_cost(config.plain, config.shape)
     pol = data.policy
     policy_cost = float(np.mean(cost(data.x[pol], data.u[pol]))) if pol.any() else None
-    return {
+    out = {
         "round": n, "rows_nu": int((~pol).sum()), "rows_policy": int(pol.sum()),
         **{k: float(v) for k, v in losses.items()}, "policy_cost": policy_cost,
     }  # fmt: skip
+    for rows, loss in (("rows_nu", "loss_nu"), ("rows_policy", "loss_policy")):
+        if not out[rows]:  # no such rows: no loss (not the masked mean's 0)
+            out[loss] = None
+    return out
 
 
 def _g(v) -> str:
