@@ -19,7 +19,7 @@ round_app = typer.Typer(
 
 @round_app.command("init")
 def init(
-    root: Path = typer.Argument(..., help="The round directory to start (DIR)."),
+    root: Path = typer.Argument(..., metavar="DIR", help="The round directory to start."),
     config: Path = typer.Option(
         ..., "--config", help="TOML file: [system], [cost], [model], [planner], [rounds]."
     ),
@@ -33,8 +33,10 @@ def init(
 
 @round_app.command("update")
 def update(
-    root: Path = typer.Argument(..., help="The round directory (DIR)."),
-    file: Path = typer.Argument(..., help="This round's transitions (.parquet or .csv)."),
+    root: Path = typer.Argument(..., metavar="DIR", help="The round directory."),
+    file: Path = typer.Argument(
+        ..., metavar="FILE", help="This round's transitions (.parquet or .csv)."
+    ),
 ) -> None:
     """One iteration: learn from FILE's transitions, solve the new model, write the next
     controller and DIR/round.md. A file already given is refused."""
@@ -53,7 +55,7 @@ def update(
 
 @round_app.command("export")
 def export(
-    root: Path = typer.Argument(..., help="The round directory (DIR)."),
+    root: Path = typer.Argument(..., metavar="DIR", help="The round directory."),
     n: int = typer.Option(None, "--round", help="Which controller (default: the latest)."),
     fmt: str = typer.Option("c", "--format", help="json, npz or c (a C99 header)."),
     out: Path = typer.Option(None, "--out", help="Output file (default: DIR/controller-NNN.*)."),
