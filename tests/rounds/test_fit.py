@@ -2,6 +2,7 @@
 and the controller is the steady-state LQR of that model (SciPy's Riccati solution as oracle);
 the C header computes the Python controller's actions."""
 
+import json
 import shutil
 import subprocess
 
@@ -95,3 +96,9 @@ def test_c_header_gives_the_python_actions(tmp_path, time_varying):
     K = controller_arrays(root)["K"]
     assert bool(np.all(K == K[0])) is not time_varying
     assert ("loopid_K[30][1][3]" in header.read_text()) is time_varying
+    saved = json.loads(rounds.export(root, "json").read_text())
+    assert saved["time_varying"] is time_varying and saved["round"] == 2
+    np.testing.assert_array_equal(saved["K"], K if time_varying else K[0])  # exact round trip
+    with np.load(rounds.export(root, "npz", out=tmp_path / "c.npz")) as z:
+        np.testing.assert_array_equal(z["K"], K)
+        assert list(z["states"]) == ["p", "v"] and z["target"].tolist() == [0.5, 0.0]
