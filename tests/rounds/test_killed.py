@@ -1,13 +1,15 @@
 """A killed ``update``, run again, leaves the same directory as one uninterrupted update: the
 kill is simulated at each of the update's writes (the write raises, as a kill would stop it)."""
 
+import jax
+import jax.numpy as jnp
 import numpy as np
 import pytest
 from rounds_helpers import transitions, write_config, write_round
 
 from loopid import rounds
 from loopid.rounds import api
-from loopid.rounds.state import read_npz
+from loopid.rounds.state import RoundState, load_state, read_npz, save_state
 
 
 def contents(root) -> dict:
@@ -67,3 +69,19 @@ def test_killed_update_then_rerun_equals_one_update(tmp_path, monkeypatch, at):
     assert same(contents(killed), contents(whole))
     with pytest.raises(ValueError, match="already given"):
         rounds.update(killed, second)
+
+
+def test_state_round_trip_keeps_every_leaf(tmp_path):
+    """A learner's state with a typed random key (the MLP's), ints and floats comes back as it
+    was saved: same structure, dtypes and values."""
+    learner = {"key": jax.random.key(4), "n": jnp.int32(7), "W": jnp.arange(6.0).reshape(2, 3)}
+    state = RoundState(3, learner, 1.5, ("ab", "cd"), ({"round": 1, "loss_nu": None},))
+    save_state(tmp_path, state)
+    template = {"key": jax.random.key(0), "n": jnp.int32(0), "W": jnp.zeros((2, 3))}
+    back = load_state(tmp_path, template)
+    assert back._replace(learner=None) == state._replace(learner=None)
+    assert back.learner["n"].dtype == jnp.int32 and int(back.learner["n"]) == 7
+    np.testing.assert_array_equal(back.learner["W"], learner["W"])
+    assert jnp.array_equal(
+        jax.random.key_data(back.learner["key"]), jax.random.key_data(learner["key"])
+    )

@@ -89,6 +89,22 @@ def read_npz(path: Path) -> dict:
         raise ValueError(f"{str(path)!r}: cannot read it ({str(err).splitlines()[0]})") from None
 
 
+def _is_key(v) -> bool:
+    return jax.numpy.issubdtype(v.dtype, jax.dtypes.prng_key)
+
+
+def _plain(v) -> np.ndarray:
+    """A leaf as a NumPy array (a typed random key as its key data, e.g. the MLP's)."""
+    return np.asarray(jax.random.key_data(v) if _is_key(v) else v)
+
+
+def _restored(a: np.ndarray, like):
+    """The leaf ``a`` saved by :func:`_plain`, with the dtype of the template leaf ``like``."""
+    if _is_key(like):
+        return jax.random.wrap_key_data(jax.numpy.asarray(a), impl=jax.random.key_impl(like))
+    return jax.numpy.asarray(a, dtype=like.dtype)
+
+
 def save_state(root, state: RoundState) -> None:
     """Commit ``state`` (one atomic rename of ``state.npz``)."""
     leaves = jax.tree_util.tree_leaves(state.learner)
@@ -96,7 +112,7 @@ def save_state(root, state: RoundState) -> None:
         "round": state.round, "loss_sum": state.loss_sum, "digests": list(state.digests),
         "history": list(state.history),
     }  # fmt: skip
-    arrays = {f"leaf_{i}": np.asarray(v) for i, v in enumerate(leaves)}
+    arrays = {f"leaf_{i}": _plain(v) for i, v in enumerate(leaves)}
     write_npz(Path(root) / STATE, {**arrays, "meta": np.asarray(json.dumps(meta))})
 
 
@@ -112,7 +128,7 @@ def load_state(root, template) -> RoundState:
     if len(z) - 1 != len(leaves):
         raise ValueError(f"{str(root / STATE)!r} does not fit the config's model class")
     learner = jax.tree_util.tree_unflatten(
-        tree, [jax.numpy.asarray(z[f"leaf_{i}"], dtype=v.dtype) for i, v in enumerate(leaves)]
+        tree, [_restored(z[f"leaf_{i}"], v) for i, v in enumerate(leaves)]
     )
     return RoundState(
         int(meta["round"]), learner, float(meta["loss_sum"]), tuple(meta["digests"]),
