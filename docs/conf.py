@@ -72,6 +72,11 @@ def write_cli_reference(app) -> None:
     lines = ["```text", help_of(), "```", ""]
     for name in root.list_commands(click.Context(root)):
         lines += [f"### `loopid {name}`", "", "```text", help_of(name), "```", ""]
+        group = root.get_command(click.Context(root), name)
+        if hasattr(group, "list_commands"):  # a group (loopid round): each subcommand too
+            for sub in group.list_commands(click.Context(group)):
+                lines += [f"#### `loopid {name} {sub}`", "", "```text", help_of(name, sub)]
+                lines += ["```", ""]
     out = DOCS / "_generated" / "cli.md"
     out.parent.mkdir(exist_ok=True)
     text = "\n".join(lines)

@@ -10,6 +10,8 @@ Commands:
   loopid evaluate DIR    the run's saved controllers on fresh test episodes
   loopid animate DIR     an animated GIF of saved policies flying
   loopid plot DIR        figure.png and report.md again from DIR/results.parquet
+  loopid round ...       a system you run yourself, one round at a time: init a round
+                         directory, update it with logged transitions, export the controller
 
 A run directory holds config.toml, results.parquet, figure.png, report.md and cells/ (one file
 per finished cell: rerunning a command resumes it). Bad input exits with code 2 and one line
@@ -24,6 +26,7 @@ from pathlib import Path
 import typer
 
 import loopid
+from loopid.rounds.commands import round_app
 
 app = typer.Typer(
     add_completion=False,
@@ -32,6 +35,8 @@ app = typer.Typer(
     pretty_exceptions_enable=False,
     rich_markup_mode=None,  # plain text: click wraps paragraphs, keeps blocks marked \b as they are
 )
+
+app.add_typer(round_app, name="round")
 
 #: --quick: every panel and method, 2 seeds, 4 iterations, 10 test trajectories.
 QUICK = {"iterations": 4, "test_trajectories": 10, "seeds": 2}

@@ -31,6 +31,7 @@ PACKAGES = [
     "loopid.theory",
     "loopid.algorithms",
     "loopid.experiments",
+    "loopid.rounds",
 ]
 
 # A Python block whose first line is this comment is shown, not run (it needs a run directory,

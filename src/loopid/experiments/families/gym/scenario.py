@@ -169,9 +169,6 @@ def validate(s: GymScenario) -> None:
     if len(kinds) != 1:
         raise ValueError(f"exploration needs exactly one of gain, policy, nominal, got {kinds}")
     check_number("action_std", s.action_std, 0.0)
-    if not isinstance(s.time_varying, bool):
-        raise ValueError(f"time_varying must be true or false, got {s.time_varying!r}")
-    check_number("ftrl_lambda", s.ftrl_lambda, 0.0)
     for name in ("iterations", "samples", "test_trajectories"):
         check_int(name, getattr(s, name))
     seeds = s.seeds
@@ -182,7 +179,16 @@ def validate(s: GymScenario) -> None:
     else:
         check_int("seeds", seeds)
     check_number("dagger_fraction", s.dagger_fraction, 0.0, 1.0)
-    model_planner.validate(s, s.horizon)
+    check_model(s, s.horizon)
+
+
+def check_model(s, horizon: int | None) -> None:
+    """``ValueError`` naming the first bad ``[model]`` or ``[planner]`` field of ``s`` (a gym
+    scenario, or any config with the same fields: :mod:`loopid.rounds.config`)."""
+    if not isinstance(s.time_varying, bool):
+        raise ValueError(f"time_varying must be true or false, got {s.time_varying!r}")
+    check_number("ftrl_lambda", s.ftrl_lambda, 0.0)
+    model_planner.validate(s, horizon)
     if s.time_varying and s.model_kind != "linear":
         raise ValueError(
             f"time_varying applies to the linear model; model_kind {s.model_kind!r} learns one "
@@ -217,28 +223,32 @@ TABLES = {
 _REQUIRED = {"env": ("id",), "cost": ("target", "Q", "R"), "exploration": ()}
 
 
-def read_file(path) -> tuple[dict, list[str] | None]:
+def read_file(path, tables=None, required=None) -> tuple[dict, list[str] | None]:
     """A gym TOML file as ``(fields, methods or None)``; one-line ``ValueError`` naming an
-    unknown or missing table or key (values are checked when the scenario is built)."""
+    unknown or missing table or key (values are checked when the scenario is built).
+    ``tables``, ``required``: another file format of the same kind (default :data:`TABLES`
+    and the gym file's required keys; :mod:`loopid.rounds.config` reads its file so)."""
+    tables = TABLES if tables is None else tables
+    required = _REQUIRED if required is None else required
     raw = read_toml(path)
     where = f"--config {str(path)!r}"
     out: dict = {}
     methods = None
     for table, given in raw.items():
-        if table not in TABLES:
-            raise ValueError(f"{where}: unknown table [{table}]; allowed: {', '.join(TABLES)}")
+        if table not in tables:
+            raise ValueError(f"{where}: unknown table [{table}]; allowed: {', '.join(tables)}")
         if not isinstance(given, dict):
             raise ValueError(f"{where}: {table} must be a table, got {given!r}")
         for key, value in given.items():
-            if key not in TABLES[table]:
+            if key not in tables[table]:
                 raise ValueError(
-                    f"{where}: unknown key {table}.{key}; allowed: {', '.join(TABLES[table])}"
+                    f"{where}: unknown key {table}.{key}; allowed: {', '.join(tables[table])}"
                 )
-            if TABLES[table][key] is None:
+            if tables[table][key] is None:
                 methods = value
             else:
-                out[TABLES[table][key]] = value
-    for table, keys in _REQUIRED.items():
+                out[tables[table][key]] = value
+    for table, keys in required.items():
         if table not in raw:
             raise ValueError(f"{where}: missing table [{table}]")
         for key in keys:

@@ -1,0 +1,186 @@
+"""Algorithm 1 one round at a time: :func:`init`, :func:`update`, :func:`controller`.
+
+Ross & Bagnell (2012), Algorithm 1, for a system that cannot be stepped from Python (a rig, a
+drone, a plant): each iteration n of the loop is one call, and a person runs the system in
+between. ``init`` solves the initial model for π_1. Each ``update`` is iteration n + 1: the
+transitions logged while π_n was deployed (the policy's rows and ν's, in the proportion
+``round.md`` asked for) are one batch for the online learner (FTRL by default: after the k-th
+update the model is the ridge fit on every row so far, regulariser λ/√(rows)), the new model is
+solved (LQR for the linear model; iLQR or MPC for the others) and π_{n+1} is written out.
+
+The agent is the Gymnasium family's (:func:`loopid.experiments.families.gym.agent.compiled_agent`,
+the same model class × learner × planner), and the losses are the loop's
+(:func:`loopid.algorithms.loop.batch_losses`): a round fed the transitions a ``loopid run gym``
+iteration learned from gives that iteration's model and gains.
+"""
+
+from pathlib import Path
+from typing import Any, NamedTuple
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from loopid.algorithms.loop import batch_losses
+from loopid.experiments.families.gym.agent import CompiledAgent, compiled_agent
+from loopid.experiments.results import write_atomic
+from loopid.rounds import report
+from loopid.rounds.config import RoundsConfig, read_config
+from loopid.rounds.data import RoundData, read_round, transitions
+from loopid.rounds.state import (
+    CONFIG,
+    REPORT,
+    RoundState,
+    controller_path,
+    data_path,
+    is_round_dir,
+    load_state,
+    read_npz,
+    save_state,
+    write_bytes,
+    write_npz,
+)
+
+
+class Update(NamedTuple):
+    """What one :func:`update` did: the new controller's number, the diagnostics it recorded
+    (a :mod:`loopid.rounds.report` row) and the new gains ``K [horizon, m, n]``."""
+
+    round: int
+    row: dict
+    K: np.ndarray
+
+
+def _agent(config: RoundsConfig) -> CompiledAgent:
+    try:
+        return compiled_agent(config, config.shape)
+    except (ValueError, TypeError) as err:
+        raise ValueError(str(err).splitlines()[0]) from None
+
+
+def load_config(root) -> RoundsConfig:
+    """The config of the round directory ``root``."""
+    root = Path(root)
+    if not is_round_dir(root):
+        raise ValueError(f"{str(root)!r} is not a round directory (run loopid round init)")
+    return read_config(root / CONFIG)
+
+
+def _controller_arrays(config: RoundsConfig, compiled: CompiledAgent, learner) -> dict:
+    K, info = jax.jit(compiled.agent.policy)(learner)
+    arrays = {
+        "kind": np.asarray("mpc" if compiled.mpc is not None else "gains"),
+        "K": np.asarray(K), "target": np.asarray(config.target, np.float64),
+        "action_op": np.asarray(config.action_op, np.float64),
+        "states": np.asarray(config.states), "actions": np.asarray(config.actions),
+        "converged": np.asarray(bool(info.converged)),
+    }  # fmt: skip
+    if compiled.agent.params is not None:
+        arrays |= {f"model_{k}": np.asarray(v) for k, v in compiled.agent.params(learner).items()}
+    return arrays
+
+
+def init(root, config_path) -> Path:
+    """Start the round directory ``root`` from the config file ``config_path``: solve the
+    initial model, write controller 1 and ``round.md``. Refuses a directory already started."""
+    root = Path(root)
+    if is_round_dir(root):
+        raise ValueError(f"{str(root)!r} is already a round directory")
+    text = Path(config_path).read_bytes() if Path(config_path).is_file() else None
+    config = read_config(config_path)
+    compiled = _agent(config)
+    learner = compiled.agent.init()
+    arrays = _controller_arrays(config, compiled, learner)
+    state = RoundState(1, learner, 0.0, (), ())
+    write_bytes(root / CONFIG, text)
+    write_npz(controller_path(root, 1), arrays)
+    write_bytes(root / REPORT, report.render(config, state).encode())
+    save_state(root, state)
+    return controller_path(root, 1)
+
+
+def _past_rows(root, config: RoundsConfig, state: RoundState) -> list[RoundData]:
+    """The committed rounds' data (one file per update, by the controller that collected it)."""
+    return [read_round(data_path(root, n), config) for n in range(1, state.round)]
+
+
+def update(root, path) -> Update:
+    """One iteration of Algorithm 1 on the transitions of the file ``path``
+    (:mod:`loopid.rounds.data`): the learner's step, the new model solved, controller N + 1
+    written, ``round.md`` rewritten, then the state committed (:mod:`loopid.rounds.state`)."""
+    root = Path(root)
+    config = load_config(root)
+    compiled = _agent(config)
+    agent = compiled.agent
+    state = load_state(root, agent.init())
+    data = read_round(path, config)
+    if data.digest in state.digests:
+        given = state.digests.index(data.digest) + 1
+        raise ValueError(f"{str(path)!r} was already given (the data of round {given})")
+    batch = transitions(data, config)
+    take = jnp.asarray(data.policy)
+    pol = batch._replace(mask=batch.mask & take)
+    nu = batch._replace(mask=batch.mask & ~take)
+    loss_nu, loss_pol, loss_batch = batch_losses(agent, state.learner, pol, nu, take)
+    learner = jax.jit(agent.update)(state.learner, batch)
+    n = state.round
+    past = _past_rows(root, config, state)
+    loss = jax.jit(agent.loss)
+    per_round = [float(jnp.mean(loss(learner, transitions(d, config)))) for d in [*past, data]]
+    rows = [d.x.shape[0] for d in [*past, data]]
+    loss_all = float(np.average(per_round, weights=rows))
+    scale = float(np.mean([np.sum((d.x_next - d.x) ** 2, 1).mean() for d in [*past, data]]))
+    loss_sum = state.loss_sum + float(loss_batch)
+    row = report.row(
+        config, n, data, loss_nu=float(loss_nu), loss_policy=float(loss_pol),
+        loss_all=loss_all, relative=loss_all / scale if scale > 0 else float("inf"),
+        online=loss_sum / n,
+        regret=loss_sum - float(np.sum(per_round)),
+    )  # fmt: skip
+    arrays = _controller_arrays(config, compiled, learner)
+    new = RoundState(n + 1, learner, loss_sum, (*state.digests, data.digest), (*state.history, row))
+    data_path(root, n).parent.mkdir(exist_ok=True)
+    write_atomic(data.table, data_path(root, n))
+    write_npz(controller_path(root, n + 1), arrays)
+    write_bytes(root / REPORT, report.render(config, new).encode())
+    save_state(root, new)
+    return Update(n + 1, row, arrays["K"])
+
+
+def controller_arrays(root, n: int | None = None) -> dict:
+    """The saved arrays of controller ``n`` (default the latest committed one) of ``root``,
+    with its number as ``round``."""
+    root = Path(root)
+    config = load_config(root)
+    latest = load_state(root, _agent(config).agent.init()).round
+    n = latest if n is None else n
+    if isinstance(n, bool) or not isinstance(n, int) or not 1 <= n <= latest:
+        raise ValueError(f"--round must be 1..{latest} (the controllers so far), got {n!r}")
+    return {**read_npz(controller_path(root, n)), "round": np.asarray(n)}
+
+
+class Controller:
+    """A saved linear controller: ``action(o [n_obs], t) -> a [m]``,
+    ``a = a_op − K_{min(t, T−1)} [o − o*; 1]``."""
+
+    def __init__(self, arrays: dict):
+        self.K = np.asarray(arrays["K"], np.float64)
+        self.target = np.asarray(arrays["target"], np.float64)
+        self.action_op = np.asarray(arrays["action_op"], np.float64)
+
+    def action(self, o, t: int = 0) -> np.ndarray:
+        dx = np.append(np.asarray(o, np.float64) - self.target, 1.0)
+        return self.action_op - self.K[min(max(int(t), 0), self.K.shape[0] - 1)] @ dx
+
+
+def controller(root, n: int | None = None) -> Any:
+    """Controller ``n`` (default the latest) of ``root`` as a :class:`Controller`; an MPC
+    controller is the gym family's MPC on the saved model (``act(obs [k, n_obs], t, index)``)."""
+    arrays = controller_arrays(root, n)
+    if str(arrays["kind"]) != "mpc":
+        return Controller(arrays)
+    from loopid.algorithms.planning_agent import restore_seeds
+
+    compiled = _agent(load_config(root))
+    saved = {k[len("model_") :]: v[None] for k, v in arrays.items() if k.startswith("model_")}
+    return compiled.mpc(restore_seeds(compiled.model, saved))

@@ -1,0 +1,163 @@
+"""A round directory's settings: :class:`RoundsConfig` and its TOML file format.
+
+``loopid round init DIR --config FILE`` reads a file of five tables. ``[cost]``, ``[model]`` and
+``[planner]`` are the Gymnasium family's (:mod:`loopid.experiments.families.gym.scenario`);
+``[system]`` replaces its ``[env]`` (there is no env: the system is run by a person) and
+``[rounds]`` its ``[run]``::
+
+    [system]   states (names, n_obs of them), actions (names, m), target (o* [n_obs], required),
+               action_op (a_op [m], default 0), horizon (steps of one episode, default 100),
+               action_limit (the largest |a − a_op| a planner may use; default none),
+               A [n_obs, n_obs] or [n_obs + 1, n_obs + 1], B [n_obs, m] or [n_obs + 1, m]
+               (the initial model; default A = I, B = 0: "knows nothing")
+    [cost]     Q, R (required; full matrices, diagonals or scalars)
+    [model]    time_varying, lambda, kind, features, degree, count, bandwidth, seed, hidden,
+               layers, learning_rate, steps, buffer
+    [planner]  kind, horizon, iterations, every, alternatives, start, cost
+    [rounds]   samples (m, transitions per round, default 200), method (dagger | batch |
+               abbeel, default dagger), dagger_fraction (default 0.5)
+
+The coordinates are the gym family's: ``Δx = [o − o*; 1]`` (``n = n_obs + 1``), ``Δu = a − a_op``,
+and a linear controller acts ``a = a_op − K_t Δx``. A config is frozen and hashable, so the
+compiled agent of :func:`loopid.experiments.families.gym.agent.compiled_agent` is built from it
+exactly as from a gym scenario (the same model class, learner and planner).
+"""
+
+from dataclasses import dataclass, fields
+from functools import cached_property
+from typing import Any
+
+from loopid.experiments import model_planner
+from loopid.experiments.config import (
+    Table,
+    check_choice,
+    check_int,
+    check_number,
+    freeze,
+    thaw,
+)
+from loopid.experiments.families.gym.env import EnvShape
+from loopid.experiments.families.gym.scenario import METHODS, check_model, read_file
+from loopid.experiments.families.gym.scenario import TABLES as GYM_TABLES
+
+
+@dataclass(frozen=True)
+class RoundsConfig(model_planner.ModelPlanner):
+    """One system identified round by round (module docstring for the file format).
+
+    Attributes:
+      states, actions: the coordinates' names (columns of a round's file).
+      target, action_op: the operating point ``o*`` [n_obs] and action ``a_op`` [m].
+      horizon: steps of one episode on the system (finite-horizon and time-varying solves).
+      action_limit: the largest ``|Δu|`` a planner's plan may use (None: unbounded).
+      A, B: the initial model; time_varying, ftrl_lambda: the gym family's ``[model]`` fields.
+      Q, R: the quadratic cost the controller is designed for.
+      samples, method, dagger_fraction: transitions per round, and how they are split between
+        the policy and ν (the gym methods).
+      planner_start, planner_cost: the gym family's ``[planner] start`` and ``cost``.
+    """
+
+    states: Any
+    actions: Any
+    target: Any
+    Q: Any
+    R: Any
+    action_op: Any = None
+    horizon: int = 100
+    action_limit: float | None = None
+    A: Any = None
+    B: Any = None
+    time_varying: bool = False
+    ftrl_lambda: float = 1e-3
+    samples: int = 200
+    method: str = "dagger"
+    dagger_fraction: float = 0.5
+    planner_start: Any = None
+    planner_cost: str | None = None
+
+    def __post_init__(self) -> None:
+        for f in fields(self):
+            v = getattr(self, f.name)
+            if isinstance(v, list | dict | tuple):
+                object.__setattr__(self, f.name, freeze(v))
+        if self.action_op is None:
+            object.__setattr__(self, "action_op", (0.0,) * _count(self.actions, "actions"))
+        validate(self)
+
+    @cached_property
+    def plain(self) -> dict[str, Any]:
+        """Every field as a plain TOML value (what the model, cost and planner are built from),
+        with ``env_id`` naming the system for the gym family's messages."""
+        return {"env_id": "[system]", **thaw(Table((f.name, getattr(self, f.name))
+                                                  for f in fields(self)))}  # fmt: skip
+
+    @property
+    def n_obs(self) -> int:
+        return len(self.states)
+
+    @property
+    def m(self) -> int:
+        return len(self.actions)
+
+    @property
+    def shape(self) -> EnvShape:
+        """The sizes and coordinates the compiled agent is built for."""
+        return EnvShape(
+            self.n_obs + 1, self.n_obs, self.m, self.horizon,
+            tuple(float(v) for v in self.target), tuple(float(v) for v in self.action_op),
+            None, self.action_limit,
+        )  # fmt: skip
+
+
+def _count(names, what: str) -> int:
+    if not isinstance(names, tuple) or not names or not all(isinstance(s, str) for s in names):
+        raise ValueError(f"[system] {what} must be a non-empty list of names, got {thaw(names)!r}")
+    return len(names)
+
+
+def _numbers(name: str, v, size: int) -> None:
+    ok = isinstance(v, tuple) and len(v) == size
+    ok = ok and all(isinstance(x, int | float) and not isinstance(x, bool) for x in v)
+    if not ok or not all(abs(x) < float("inf") for x in v):
+        raise ValueError(f"[system] {name} must be {size} finite numbers, got {thaw(v)!r}")
+
+
+def validate(c: RoundsConfig) -> None:
+    """Raise ``ValueError`` naming the first bad field (sizes against the names included)."""
+    n_obs, m = _count(c.states, "states"), _count(c.actions, "actions")
+    names = [*c.states, *c.actions]
+    names += [f"next_{s}" for s in c.states]
+    dup = sorted({s for s in names if names.count(s) > 1} | ({"source"} & set(names)))
+    if dup:
+        raise ValueError(f"[system] names must be distinct and not 'source', got {dup}")
+    _numbers("target", c.target, n_obs)
+    _numbers("action_op", c.action_op, m)
+    check_int("horizon", c.horizon)
+    if c.action_limit is not None:
+        check_number("action_limit", c.action_limit, 0.0, open_low=True)
+    check_int("samples", c.samples)
+    check_choice("method", c.method, METHODS)
+    check_number("dagger_fraction", c.dagger_fraction, 0.0, 1.0)
+    check_model(c, c.horizon)
+
+
+SYSTEM_KEYS = ("states", "actions", "target", "action_op", "horizon", "action_limit", "A", "B")
+#: TOML table -> {key: field}; [cost], [model] and [planner] as the gym family's.
+TABLES = {
+    "system": {k: k for k in SYSTEM_KEYS},
+    "cost": {"Q": "Q", "R": "R"},
+    "model": {k: f for k, f in GYM_TABLES["model"].items() if k not in ("A", "B")},
+    "planner": GYM_TABLES["planner"],
+    "rounds": {"samples": "samples", "method": "method", "dagger_fraction": "dagger_fraction"},
+}
+_REQUIRED = {"system": ("states", "actions", "target"), "cost": ("Q", "R")}
+
+
+def read_config(path) -> RoundsConfig:
+    """The :class:`RoundsConfig` of a TOML file; one-line ``ValueError`` naming an unknown or
+    missing table or key (the gym family's reader, with this format's tables), or a bad value."""
+    out, _ = read_file(path, TABLES, _REQUIRED)
+    try:
+        return RoundsConfig(**out)
+    except (ValueError, TypeError) as err:
+        raise ValueError(f"--config {str(path)!r}: {str(err).splitlines()[0]}") from None
