@@ -1,7 +1,7 @@
 """Seed chunks (loopid.experiments.chunks): the plan, the same table whatever the chunking, resume
 after a kill, the memory estimate against a measured peak, and the one-line refusals."""
 
-import dataclasses
+import copy
 import json
 import os
 import re
@@ -57,7 +57,8 @@ def test_plan_caps_chunks_for_speed_and_a_task_over_budget_comes_back_in_chunks_
         asked.append(seeds)
         return 1000 * seeds
 
-    measured = dataclasses.replace(family, memory=memory)
+    measured = copy.copy(family)
+    measured.memory = memory
     monkeypatch.setattr(execute, "family_of", lambda s: measured)
     result = execute.run_chunk(s, "dagger-t", jobs[1].seeds, limit=6000)
     assert result == execute.Oversized(10_000) and asked == [10]

@@ -95,7 +95,6 @@ def check_cells(scenarios: Sequence[Scenario], methods: Methods, seeds) -> np.nd
         raise ValueError(f"seeds must be a non-empty list of integers, got {seeds.tolist()!r}")
     if (seeds < 0).any():
         raise ValueError(f"seeds must be >= 0, got {seeds.tolist()}")
-    if family.check is not None:
-        for s in scenarios:
-            family.check(s)
+    for s in scenarios:
+        family.check(s)
     return seeds

@@ -137,7 +137,7 @@ def run_cell(
         if isinstance(method, tuple):
             meta["lane_set"] = ",".join(method)
         table = with_metadata(trace_table(s.name, m, trace), **meta)
-        shared = family.shared(s, m) if family.shared is not None else {}
+        shared = family.shared(s, m)
         results[m] = CellResult(table, np.asarray(trace.seeds), dict(trace.final or {}), shared)
     return results if isinstance(method, tuple) else results[method]
 

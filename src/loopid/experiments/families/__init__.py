@@ -7,7 +7,7 @@ a ``--config`` file). A new kind of system is one new module with a ``FAMILY`` a
 """
 
 from loopid.experiments.families import gym, helicopter, mdp
-from loopid.experiments.families.base import Family
+from loopid.experiments.families.base import Family, FunctionFamily
 
 #: Every family, by name.
 FAMILIES: dict[str, Family] = {f.name: f for f in (helicopter.FAMILY, mdp.FAMILY, gym.FAMILY)}
@@ -55,4 +55,12 @@ def family_of(config) -> Family:
     )
 
 
-__all__ = ["FAMILIES", "Family", "family_named", "family_of", "register", "scenario_names"]
+__all__ = [
+    "FAMILIES",
+    "Family",
+    "FunctionFamily",
+    "family_named",
+    "family_of",
+    "register",
+    "scenario_names",
+]

@@ -3,7 +3,8 @@
 A *family* is one kind of real system (the helicopter, finite MDPs, any Gymnasium env). The
 pipeline above it (:mod:`loopid.experiments.execute`: cells, resume, atomic files, workers, Ray,
 progress, ``report.md``, ``loopid plot``, the command line) knows nothing else about it. A family
-module defines one frozen config dataclass and one :class:`Family`; the registry
+module defines one frozen config dataclass and one subclass of :class:`Family`, an interface
+that says which parts a family must give and which it may; the registry
 (:mod:`loopid.experiments.families`) maps scenario names to families.
 
 Every config dataclass has the fields ``name``, ``iterations``, ``samples`` and ``seeds`` (a
@@ -13,10 +14,12 @@ TOML values; ``None`` left out). The helpers they share (checks, reading a ``--c
 ``--set key=value``) are in :mod:`loopid.experiments.config`.
 """
 
+import warnings
+from abc import ABC, abstractmethod
 from collections.abc import Callable, Mapping, Sequence
-from dataclasses import dataclass, fields
+from dataclasses import fields
 from pathlib import Path
-from typing import Any
+from typing import Any, ClassVar
 
 import pyarrow as pa
 
@@ -26,74 +29,107 @@ from loopid.algorithms.loop import Row, Trace
 Progress = Callable[[int, Row], None]
 
 
-@dataclass(frozen=True)
-class Family:
-    """One kind of system, as the pipeline sees it.
+class Family(ABC):
+    """One kind of system, as the pipeline sees it: subclass it and give its parts.
 
-    Attributes:
-      name: the family's name (``helicopter``, ``mdp``, ``gym``), recorded in ``config.toml``.
-      config: the frozen config dataclass of its scenarios.
-      methods: every method it offers.
-      scenarios: the named scenarios it ships (name -> config); may be empty (``gym`` is
-        always built from a file).
-      default_methods: ``default_methods(config) -> methods`` run when none are chosen.
-      build: ``build(name, fields) -> config``: the named scenario (or, for a family without
-        shipped scenarios, a new one) with ``fields`` set; ``ValueError`` on a bad field.
-      read_file: ``read_file(path) -> (fields, methods or None)``: a ``--config`` TOML file.
-      run: ``run(method, config, seeds, progress=None) -> Trace``: one cell, every seed at once
-        (``seeds``: an integer array; ``progress`` is passed by keyword). Workers and Ray call
-        it in other processes, so it must be importable there (a module-level function).
-      figure: ``figure(table, path, configs)``: the run's ``figure.png``.
-      report: ``report(table, configs) -> lines``: the family's sections of ``report.md``
-        (Markdown lines), after the common header, configuration and wall time.
-      check: ``check(config)``: checks that need the system itself (sizes against a Gymnasium
-        env, say), run before anything is written; None when the config checks itself.
-      shared: ``shared(config, method) -> {name: array}``: what a cell's seeds share and its
-        artifacts keep beside their own arrays (the nominal model the learned offsets add to);
-        None for nothing.
-      load: ``load(config, method, arrays) -> (model, controller)``: one seed's saved final
-        arrays (:mod:`loopid.experiments.artifacts`) rebuilt in the system's coordinates
-        (:mod:`loopid.experiments.saved`); None when the family cannot.
-      trajectories: ``trajectories(run_dir, configs, path)``: ``trajectories.png``, what each
-        method's saved final policy flies; None when the family draws none.
-      animate: ``animate(run_dir, config, methods, seed, path)``: an animated GIF of those
-        policies flying; None when the family cannot.
-      evaluate: ``evaluate(config, arrays, seeds, episodes, env) -> costs [S, episodes]``:
-        saved policies on fresh test episodes (noise the run never saw; ``env``: another
-        Gymnasium id, gym only); ``arrays``: the seeds' saved arrays (:mod:`.artifacts`),
-        ``{name: [S, ...]}`` (the gains ``K``, and the model's parameters, which a saved MPC
-        re-plans on) with the ``shared.*`` ones whole; None when the family cannot.
-      memory: ``memory(config, method, seeds) -> bytes``: the peak memory of one cell's
-        programs for that many seeds (:mod:`loopid.experiments.chunks` sizes chunks with it);
-        None when the family's cells run unchunked (all seeds at once). A family with lane
-        sets also takes a tuple of methods: the peak of their lane set.
-      lane_sets: ``lane_sets(config, methods) -> [tuple of methods]``: the methods grouped as
-        they can run together as one *lane set* (one compiled program over every (method,
-        seed) pair: width an accelerator computes at the cost of one); None: each alone.
-      run_lanes: ``run_lanes(methods, config, seeds, progress=None) -> {method: Trace}``: one
-        group of ``lane_sets``, each method's trace the same numbers as ``run``'s;
-        ``progress(n, row)`` with the row's leaves over the lanes. None without lane sets.
+    **Required.** A subclass that lacks one cannot be instantiated (``TypeError`` naming it):
+
+    - ``name`` (class attribute): the family's name (``helicopter``, ``mdp``, ``gym``), recorded
+      in ``config.toml``; ``config``: the frozen config dataclass of its scenarios;
+      ``methods``: every method it offers.
+    - :meth:`build`, :meth:`read_file`, :meth:`run`, :meth:`figure` and :meth:`report`.
+
+    **Optional, with a default.** ``scenarios`` (the named scenarios it ships; default none:
+    every scenario is built from a file, as ``gym``'s), :meth:`default_methods` (every
+    method), :meth:`check` (nothing to check), :meth:`shared` (nothing shared) and
+    :meth:`lane_sets` (each method alone).
+
+    **Optional capabilities.** ``None`` on this class; a family that offers one defines it as a
+    method, and the pipeline says in one line what a family without it cannot do:
+
+    - ``load(config, method, arrays) -> (model, controller)``: one seed's saved final arrays
+      (:mod:`loopid.experiments.artifacts`) rebuilt in the system's coordinates
+      (:mod:`loopid.experiments.saved`).
+    - ``evaluate(config, arrays, seeds, episodes, env) -> costs [S, episodes]``: saved policies
+      on fresh test episodes (noise the run never saw; ``env``: another Gymnasium id, gym only);
+      ``arrays``: the seeds' saved arrays, ``{name: [S, ...]}`` (the gains ``K``, and the
+      model's parameters, which a saved MPC re-plans on) with the ``shared.*`` ones whole.
+    - ``trajectories(run_dir, configs, path)``: ``trajectories.png``, what each method's saved
+      final policy flies; ``animate(run_dir, config, methods, seed, path)``: an animated GIF of
+      them.
+    - ``memory(config, method, seeds) -> bytes``: the peak memory of one cell's programs for that
+      many seeds (:mod:`loopid.experiments.chunks` sizes chunks with it; without it a cell runs
+      all its seeds at once). A family with lane sets also takes a tuple of methods: the peak of
+      their lane set.
+    - ``run_lanes(methods, config, seeds, progress=None) -> {method: Trace}``: one group of
+      :meth:`lane_sets` as one compiled program over every (method, seed) pair (width an
+      accelerator computes at the cost of one), each method's trace the same numbers as
+      :meth:`run`'s; ``progress(n, row)`` with the row's leaves over the lanes.
     """
 
-    name: str
-    config: type
-    methods: tuple[str, ...]
-    scenarios: Mapping[str, Any]
-    default_methods: Callable[[Any], Sequence[str]]
-    build: Callable[[str, dict], Any]
-    read_file: Callable[[Path], tuple[dict, list[str] | None]]
-    run: Callable[..., Trace]
-    figure: Callable[[pa.Table, Path, Mapping[str, Any]], None]
-    report: Callable[[pa.Table, Mapping[str, Any]], list[str]]
-    check: Callable[[Any], None] | None = None
-    shared: Callable[[Any, str], dict] | None = None
+    name: ClassVar[str]
+    config: ClassVar[type]
+    methods: ClassVar[tuple[str, ...]]
+    scenarios: ClassVar[Mapping[str, Any]] = {}
+
     load: Callable[[Any, str, dict], tuple[Any, Any]] | None = None
     evaluate: Callable[..., Any] | None = None
     trajectories: Callable[..., Any] | None = None
     animate: Callable[..., Any] | None = None
     memory: Callable[[Any, Any, int], int] | None = None
-    lane_sets: Callable[[Any, Sequence[str]], list[tuple[str, ...]]] | None = None
     run_lanes: Callable[..., dict[str, Trace]] | None = None
+
+    def __new__(cls, *args, **parts):
+        if cls is Family:  # the record form of earlier releases: Family(name=..., run=..., ...)
+            warnings.warn(
+                "Family(name=..., run=..., ...) is now FunctionFamily(...), or a subclass of "
+                "Family; the record form goes in the next release",
+                DeprecationWarning,
+                stacklevel=2,
+            )
+            return FunctionFamily(*args, **parts)
+        return super().__new__(cls)
+
+    @abstractmethod
+    def build(self, name: str, fields: dict) -> Any:
+        """The named scenario (or, for a family without shipped scenarios, a new one) with
+        ``fields`` set; ``ValueError`` naming a bad field."""
+
+    @abstractmethod
+    def read_file(self, path: Path) -> tuple[dict, list[str] | None]:
+        """A ``--config`` TOML file: ``(fields, methods or None)``."""
+
+    @abstractmethod
+    def run(self, method: str, config, seeds, progress: Progress | None = None) -> Trace:
+        """One cell, every seed at once (``seeds``: an integer array). Workers and Ray call it
+        in other processes, which find the family by its config's type, so the family must be
+        registered by a module they import."""
+
+    @abstractmethod
+    def figure(self, table: pa.Table, path: Path, configs: Mapping[str, Any]) -> None:
+        """The run's ``figure.png``."""
+
+    @abstractmethod
+    def report(self, table: pa.Table, configs: Mapping[str, Any]) -> list[str]:
+        """The family's sections of ``report.md`` (Markdown lines), after the common header,
+        configuration and wall time."""
+
+    def default_methods(self, config) -> Sequence[str]:
+        """The methods run when none are chosen: every one."""
+        return self.methods
+
+    def check(self, config) -> None:  # noqa: B027  (optional: nothing to check by default)
+        """Checks that need the system itself (sizes against a Gymnasium env, say), run before
+        anything is written; ``ValueError`` naming the bad value."""
+
+    def shared(self, config, method: str) -> dict:
+        """What a cell's seeds share and its artifacts keep beside their own arrays (the
+        nominal model the learned offsets add to): ``{name: array}``."""
+        return {}
+
+    def lane_sets(self, config, methods: Sequence[str]) -> list[tuple[str, ...]]:
+        """``methods`` grouped as they can run as one lane set (:attr:`run_lanes`): each alone."""
+        return [(m,) for m in methods]
 
     def field_names(self) -> tuple[str, ...]:
         """The config dataclass's field names."""
@@ -106,3 +142,40 @@ class Family:
                 raise ValueError(
                     f"unknown method {m!r} for {config.name}; choose from {', '.join(self.methods)}"
                 )
+
+
+class FunctionFamily(Family):
+    """A family given as functions, one keyword per part of :class:`Family` (the required
+    ``name``, ``config``, ``methods``, ``build``, ``read_file``, ``run``, ``figure`` and
+    ``report``; any optional one), for a family written as a few functions in a script.
+    ``default_methods(config)`` is a function here too."""
+
+    def __init__(self, *, name, config, methods, build, read_file, run, figure, report, **parts):
+        optional = {"scenarios", "default_methods", "check", "shared", "lane_sets"}
+        optional |= {"load", "evaluate", "trajectories", "animate", "memory", "run_lanes"}
+        unknown = sorted(set(parts) - optional)
+        if unknown:
+            raise TypeError(f"unknown part(s) of a family: {', '.join(unknown)}")
+        self.name, self.config, self.methods = name, config, tuple(methods)
+        self._required = {
+            "build": build, "read_file": read_file, "run": run, "figure": figure,
+            "report": report,
+        }  # fmt: skip
+        for part, value in parts.items():
+            if value is not None:
+                setattr(self, part, value)
+
+    def build(self, name, fields):
+        return self._required["build"](name, fields)
+
+    def read_file(self, path):
+        return self._required["read_file"](path)
+
+    def run(self, method, config, seeds, progress=None):
+        return self._required["run"](method, config, seeds, progress=progress)
+
+    def figure(self, table, path, configs):
+        return self._required["figure"](table, path, configs)
+
+    def report(self, table, configs):
+        return self._required["report"](table, configs)

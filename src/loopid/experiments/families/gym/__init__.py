@@ -40,24 +40,31 @@ from loopid.experiments.families.gym.scenario import (
 )
 from loopid.experiments.families.gym.setup import Setup, check, gym_setup, run, shared
 
-FAMILY = Family(
-    name="gym",
-    config=GymScenario,
-    methods=METHODS,
-    scenarios={},
-    default_methods=lambda s: ("dagger", "batch"),
-    build=build,
-    read_file=read_file,
-    run=run,
-    figure=figure,
-    report=report,
-    check=check,
-    shared=shared,
-    load=load,
-    evaluate=evaluate,
-    trajectories=trajectories,
-    animate=animate,
-)
+
+class GymFamily(Family):
+    """Any Gymnasium environment, from a ``--config`` file (:mod:`.scenario`)."""
+
+    name = "gym"
+    config = GymScenario
+    methods = METHODS
+
+    def default_methods(self, config):
+        return ("dagger", "batch")
+
+    build = staticmethod(build)
+    read_file = staticmethod(read_file)
+    run = staticmethod(run)
+    figure = staticmethod(figure)
+    report = staticmethod(report)
+    check = staticmethod(check)
+    shared = staticmethod(shared)
+    load = staticmethod(load)
+    evaluate = staticmethod(evaluate)
+    trajectories = staticmethod(trajectories)
+    animate = staticmethod(animate)
+
+
+FAMILY = GymFamily()
 
 #: Names this module had before it became a package, kept for one release.
 _RENAMED = {"Learner": "CompiledAgent", "Shape": "EnvShape"}
@@ -86,6 +93,7 @@ __all__ = [
     "CompiledAgent",
     "EnvShape",
     "EnvSpec",
+    "GymFamily",
     "GymScenario",
     "Setup",
     "animate",

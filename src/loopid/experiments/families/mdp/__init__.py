@@ -47,27 +47,42 @@ from loopid.experiments.families.mdp.scenario import (
     scenario_nu,
 )
 
-FAMILY = Family(
-    name="mdp",
-    config=MDPScenario,
-    methods=MDP_METHODS,
-    scenarios=MDP_SCENARIOS,
-    default_methods=lambda s: MDP_METHODS,
-    build=build,
-    read_file=lambda path: read_flat_file(path, [f.name for f in fields(MDPScenario)]),
-    run=lambda method, s, seeds=None, progress=None: run_mdp(method, s, seeds, progress),
-    figure=lambda table, path, configs: mdp_figure(table, path),
-    report=report,
-    load=load,
-    evaluate=evaluate,
-    trajectories=trajectories,
-    memory=lambda s, method, seeds: cell_memory(mdp_setup(s).cell, seeds),
-)
+
+class MDPFamily(Family):
+    """Finite MDPs, where the paper's guarantees can be computed exactly: ``mdp-random``,
+    ``mdp-trap`` and ``mdp-trap-hinge``."""
+
+    name = "mdp"
+    config = MDPScenario
+    methods = MDP_METHODS
+    scenarios = MDP_SCENARIOS
+
+    build = staticmethod(build)
+    report = staticmethod(report)
+    load = staticmethod(load)
+    evaluate = staticmethod(evaluate)
+    trajectories = staticmethod(trajectories)
+
+    def read_file(self, path):
+        return read_flat_file(path, [f.name for f in fields(MDPScenario)])
+
+    def run(self, method, config, seeds=None, progress=None):
+        return run_mdp(method, config, seeds, progress)
+
+    def figure(self, table, path, configs):
+        mdp_figure(table, path)
+
+    def memory(self, config, method, seeds):
+        return cell_memory(mdp_setup(config).cell, seeds)
+
+
+FAMILY = MDPFamily()
 
 __all__ = [
     "FAMILY",
     "MDP_METHODS",
     "MDP_SCENARIOS",
+    "MDPFamily",
     "MDPScenario",
     "MDPSetup",
     "build",
