@@ -51,7 +51,7 @@ def bench(name: str, seeds: int, runs: int) -> None:
     ids = np.arange(seeds)
     noise = cell.noise(seed_keys(ids))
     options = dict(samples=s.samples, n_test=s.test_trajectories, mode=s.sampling, gamma=s.gamma,
-                   test_policy=s.test_policy, cell=cell, noise=noise)  # fmt: skip
+                   test_policy=s.test_policy, program=cell, noise=noise)  # fmt: skip
 
     def lanes():
         return run_lanes(plant, agent, nus, schedules, ids, which=which, **options)

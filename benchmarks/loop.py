@@ -25,7 +25,7 @@ import loopid  # noqa: F401  (float64)
 from loopid.algorithms import methods as M
 from loopid.algorithms.expert import expert_gains
 from loopid.algorithms.helicopter_plant import helicopter_nominal_model, helicopter_plant
-from loopid.algorithms.loop import make_cell, run_learning
+from loopid.algorithms.loop import make_loop_program, run_learning
 from loopid.algorithms.model_based import linear_agent
 from loopid.experiments.scenarios import scenario
 from loopid.exploration import make_nu
@@ -56,14 +56,14 @@ def jax_cell():
         plant.horizon,
     )
     nu = make_nu("t", plant, expert_gains(task))
-    cell = make_cell(plant, agent, nu, samples=S.samples, iterations=S.iterations,
+    cell = make_loop_program(plant, agent, nu, samples=S.samples, iterations=S.iterations,
                      n_test=S.test_trajectories)  # fmt: skip
     fractions = M.policy_fractions(METHOD, S.iterations)
     seeds = np.arange(S.seeds)
 
     def go(iterations):
         return run_learning(plant, agent, nu, fractions[:iterations], seeds, samples=S.samples,
-                            n_test=S.test_trajectories, cell=cell)  # fmt: skip
+                            n_test=S.test_trajectories, program=cell)  # fmt: skip
 
     t0 = time.perf_counter()
     go(2)  # compiles start and step

@@ -25,6 +25,17 @@ NEW_HOME = {
 }
 
 
+#: Renamed in their own module: the compiled loop (was "cell", like the unit of work).
+RENAMED_IN_PLACE = [
+    ("loopid.algorithms.loop", "Cell", "LoopProgram"),
+    ("loopid.algorithms.loop", "make_cell", "make_loop_program"),
+    ("loopid.algorithms.loop", "cell_memory", "program_memory"),
+    ("loopid.algorithms.gym_loop", "HostCell", "HostLoopProgram"),
+    ("loopid.algorithms.gym_loop", "make_host_cell", "make_host_program"),
+    ("loopid.experiments.families.helicopter", "cell", "loop_program"),
+]
+
+
 @pytest.mark.parametrize(("module", "old", "new"), RENAMED)
 def test_an_old_name_warns_and_is_the_new_object(module, old, new):
     with pytest.warns(DeprecationWarning, match=new):
@@ -32,8 +43,27 @@ def test_an_old_name_warns_and_is_the_new_object(module, old, new):
     assert obj is getattr(importlib.import_module(NEW_HOME.get(module, module)), new)
 
 
+@pytest.mark.parametrize(("module", "old", "new"), RENAMED_IN_PLACE)
+def test_a_name_renamed_in_place_warns_and_is_the_new_object(module, old, new):
+    with pytest.warns(DeprecationWarning, match=new):
+        obj = getattr(importlib.import_module(module), old)
+    assert obj is getattr(importlib.import_module(module), new)
+    assert old not in getattr(importlib.import_module(module), "__all__", ())
+
+
+def test_the_old_cell_keyword_warns_and_is_the_program():
+    from loopid._renamed import renamed_argument
+
+    program = object()
+    with pytest.warns(DeprecationWarning, match="program="):
+        assert renamed_argument("run_learning", "cell", "program", program, None) is program
+    assert renamed_argument("run_learning", "cell", "program", None, program) is program
+    with pytest.raises(TypeError, match="both"):
+        renamed_argument("run_learning", "cell", "program", program, program)
+
+
 def test_an_unknown_name_is_still_an_attribute_error():
-    for module in {m for m, _, _ in RENAMED}:
+    for module in {m for m, _, _ in RENAMED + RENAMED_IN_PLACE}:
         with pytest.raises(AttributeError):
             _ = importlib.import_module(module).no_such_name
 

@@ -17,7 +17,7 @@ import pytest
 
 from loopid.algorithms.expert import expert_gains
 from loopid.algorithms.helicopter_plant import helicopter_plant
-from loopid.algorithms.loop import eval_noise, make_cell, seed_keys
+from loopid.algorithms.loop import eval_noise, make_loop_program, seed_keys
 from loopid.algorithms.model_based import linear_agent
 from loopid.algorithms.plant import make_plant
 from loopid.control import dlqr_affine
@@ -130,7 +130,9 @@ def _dagger_model(delay_mode: str):
     learner = ftrl_least_squares(1e-3)
     agent = linear_agent(nominal, learner, task.Q, task.R, HORIZON)
     nu = nu_trajectory(plant, state_var=0.25, action_var=0.25)
-    start, step, _ = make_cell(plant, agent, nu, samples=100, iterations=ITERATIONS, n_test=10)
+    start, step, _ = make_loop_program(
+        plant, agent, nu, samples=100, iterations=ITERATIONS, n_test=10
+    )
     keys = seed_keys(np.arange(3))
     noise = eval_noise(plant, keys, 10, "last")
     carry, _ = start(keys, noise)

@@ -9,7 +9,7 @@ import jax
 import numpy as np
 import pytest
 
-from loopid.algorithms.loop import EvalNoise, lane_noise, make_cell, run_lanes, run_learning
+from loopid.algorithms.loop import EvalNoise, lane_noise, make_loop_program, run_lanes, run_learning
 from loopid.algorithms.mdp_agent import (
     counts_model,
     explicit_nu,
@@ -33,7 +33,7 @@ def lanes():
     _, second = policy_nu(mdp, np.tile([0.8, 0.2], (5, 1)))
     model = counts_model(5, 2)
     plant, agent = mdp_plant(mdp, 15), mdp_agent(mdp, model)
-    cell = make_cell(
+    cell = make_loop_program(
         plant, agent, [explicit_nu(mdp, uniform), second], samples=SAMPLES,
         iterations=ITERATIONS, n_test=1, mode="geometric", gamma=0.9,
         diagnostics=mdp_diagnostics(mdp, uniform, model),
@@ -43,14 +43,14 @@ def lanes():
         schedules = [policy_fractions(m, ITERATIONS) for m, _ in methods]
         return run_lanes(
             plant, agent, None, schedules, SEEDS, samples=SAMPLES, n_test=1, mode="geometric",
-            gamma=0.9, cell=cell, which=[w for _, w in methods],
+            gamma=0.9, program=cell, which=[w for _, w in methods],
         )  # fmt: skip
 
     def alone(method):
         m, w = method
         return run_learning(
             plant, agent, None, policy_fractions(m, ITERATIONS), SEEDS, samples=SAMPLES,
-            n_test=1, mode="geometric", gamma=0.9, cell=cell, which=w,
+            n_test=1, mode="geometric", gamma=0.9, program=cell, which=w,
         )  # fmt: skip
 
     return run, alone

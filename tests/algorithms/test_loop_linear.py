@@ -2,8 +2,9 @@
 
 On ``x' = A x + B u + w`` the linear offset model class contains the truth, so DAgger and Batch
 must both recover ``(A, B)`` from their data and their LQR policies must reach the optimal
-cost. One compiled cell (:func:`make_cell`) serves every method: the policy fraction ``p_n`` is a
-traced argument, so DAgger (½), Batch (0) and Abbeel's schedule (0 then 1) share it.
+cost. One compiled loop program (:func:`make_loop_program`) serves every method: the policy
+fraction ``p_n`` is a traced argument, so DAgger (½), Batch (0) and Abbeel's schedule (0 then 1)
+share it.
 """
 
 import functools
@@ -15,7 +16,7 @@ import pytest
 
 from conftest import tree_allclose
 from loopid.algorithms import methods as M
-from loopid.algorithms.loop import eval_noise, make_cell, run_learning, seed_keys
+from loopid.algorithms.loop import eval_noise, make_loop_program, run_learning, seed_keys
 from loopid.algorithms.model_based import linear_agent
 from loopid.algorithms.plant import make_plant
 from loopid.control import dlqr_affine
@@ -57,7 +58,7 @@ class LinearSetup:
         self.nu = nu_trajectory(self.plant, state_var=0.25, action_var=0.25)
         self.keys = seed_keys(SEEDS)
         self.noise = eval_noise(self.plant, self.keys, N_TEST, "last")
-        self.cell = make_cell(
+        self.cell = make_loop_program(
             self.plant, self.agent, self.nu, samples=SAMPLES, iterations=ITERATIONS, n_test=N_TEST
         )
         self._runs = {}
@@ -166,7 +167,7 @@ def test_run_learning_matches_cell_and_is_deterministic(lin):
     fractions = M.policy_fractions("dagger-t", ITERATIONS)
     cell = lin.cell
     a = run_learning(
-        lin.plant, lin.agent, lin.nu, fractions, SEEDS, samples=SAMPLES, n_test=N_TEST, cell=cell
+        lin.plant, lin.agent, lin.nu, fractions, SEEDS, samples=SAMPLES, n_test=N_TEST, program=cell
     )
     _, rows = lin.run("dagger-t")
     assert len(jax.tree_util.tree_leaves(a.rows)) >= 10

@@ -9,7 +9,7 @@ import pytest
 
 from loopid.algorithms import methods as M
 from loopid.algorithms.collect import policy_samples
-from loopid.algorithms.loop import make_cell, run_fixed_policy, run_learning, seed_keys
+from loopid.algorithms.loop import make_loop_program, run_fixed_policy, run_learning, seed_keys
 from loopid.algorithms.plant import draw, make_plant
 from loopid.experiments.families.helicopter import run
 from loopid.experiments.scenarios import scenario
@@ -104,7 +104,7 @@ def test_bad_plant_and_loop_options(plant):
     with pytest.raises(ValueError, match="'sideways'"):
         policy_samples(plant, K, jax.random.key(0), 3, mode="sideways")
     with pytest.raises(ValueError, match="'worst'"):
-        make_cell(plant, None, None, samples=1, iterations=2, n_test=1, test_policy="worst")
+        make_loop_program(plant, None, None, samples=1, iterations=2, n_test=1, test_policy="worst")
     with pytest.raises(ValueError, match=re.escape("1.2")):
         run_learning(plant, None, None, [0.0, 1.2], [0], samples=1, n_test=1)
     with pytest.raises(ValueError, match="iterations"):

@@ -30,7 +30,7 @@ def test_the_cell_flies_mpc_on_each_seeds_model():
     assert trace.final["K"].shape == (3, 400, 4, 21)
     key = family.program_key(s)
     plant = assembly._mpc(key)[0].plant
-    noise = assembly._cell(key)[1].noise(seed_keys(np.arange(3))).test
+    noise = assembly._program(key)[1].noise(seed_keys(np.arange(3))).test
     costs, _ = jax.jit(plant.eval_seeds)(jnp.asarray(trace.final["W_features"]), noise)
     np.testing.assert_allclose(trajectory_mean(costs), trace.rows.test_cost[:, -1], rtol=1e-9)
 

@@ -9,7 +9,7 @@ import pyarrow as pa
 import pytest
 
 from loopid.algorithms.collect import policy_samples
-from loopid.algorithms.loop import make_cell, run_learning
+from loopid.algorithms.loop import make_loop_program, run_learning
 from loopid.algorithms.mdp_agent import (
     DIAGNOSTICS,
     MDPModel,
@@ -92,13 +92,13 @@ def test_a_learner_that_is_not_no_regret_gives_a_larger_bound_not_a_violation():
     broken = MDPModel(frozen, *good[1:4], "frozen")
     agent = mdp_agent(setup.mdp, broken)
     diag = mdp_diagnostics(setup.mdp, setup.nu_dist, broken)
-    cell = make_cell(
+    cell = make_loop_program(
         setup.plant, agent, setup.nu, samples=s.samples, iterations=10, n_test=1,
         mode="geometric", gamma=s.gamma, diagnostics=diag,
     )  # fmt: skip
     trace = run_learning(
         setup.plant, agent, setup.nu, policy_fractions("dagger-t", 10), range(4),
-        samples=s.samples, n_test=1, mode="geometric", gamma=s.gamma, cell=cell,
+        samples=s.samples, n_test=1, mode="geometric", gamma=s.gamma, program=cell,
     )  # fmt: skip
     bound, j_best = _extra(trace, "bound"), _extra(trace, "j_best")
     assert np.all(j_best <= bound + 1e-9)

@@ -48,7 +48,7 @@ def final_costs(table, method: str) -> dict[int, float]:
 def test_a_reloaded_helicopter_controller_gives_the_recorded_costs_exactly(hover_run, method):
     out, table = hover_run
     plant = helicopter.setup(HOVER).plant
-    _, cell = helicopter.cell(HOVER)
+    _, cell = helicopter.loop_program(HOVER)
     for seed, recorded in final_costs(table, method).items():
         saved = loopid.load(out, "hover", method, seed)
         noise = cell.noise(seed_keys([seed])).test  # the run's own test noise for this seed
@@ -193,7 +193,7 @@ def test_loopid_evaluate_reports_the_recorded_cost_within_its_standard_error(tmp
     rows = pq.read_table(out / "evaluate.parquet").to_pylist()
     assert len(rows) == 9 * 2 and all(r["episodes"] == 100 for r in rows)
     s = scenario("hover", seeds=2, iterations=5)
-    plant, (_, cell) = helicopter.setup(s).plant, helicopter.cell(s)
+    plant, (_, cell) = helicopter.setup(s).plant, helicopter.loop_program(s)
     worst = 0.0
     for r in rows:
         saved = loopid.load(out, "hover", r["method"], r["seed"])

@@ -11,7 +11,7 @@ from loopid.algorithms.gym_loop import (
     episode_costs,
     gym_agent,
     gym_nominal_model,
-    make_host_cell,
+    make_host_program,
     run_learning_host,
 )
 from loopid.systems import helicopter
@@ -191,8 +191,8 @@ def test_host_loop_semantics_and_common_random_numbers():
         cost = observation_cost([0.0, 0.0], [1.0, 0.1], [0.001])
         agent = gym_agent(system, cost, gym_nominal_model(system))
         nu = Exploration(system.linear_policy(np.array([[3.0, 0.5]])), 0.5)
-        cell = make_host_cell(agent, samples=60)
-        run = dict(samples=60, n_test=3, cost=cost, cell=cell)
+        cell = make_host_program(agent, samples=60)
+        run = dict(samples=60, n_test=3, cost=cost, program=cell)
         dagger = run_learning_host(system, agent, nu, [0.0, 0.5, 0.5], [0, 1], **run)
         batch = run_learning_host(system, agent, nu, [0.0, 0.0, 0.0], [0, 1], **run)
         again = run_learning_host(system, agent, nu, [0.0, 0.5, 0.5], [0, 1], **run)

@@ -8,7 +8,7 @@ cell returns.
   iterations and what it ended with.
 - :class:`Diagnostics`: an optional per-iteration hook for quantities only one system can
   compute.
-- :class:`Cell`: one compiled learning cell's programs; :class:`EvalNoise`: the seeds' test
+- :class:`LoopProgram`: the learning loop's compiled programs; :class:`EvalNoise`: the seeds' test
   noise in the layout the test rollouts read.
 
 They are NamedTuples of arrays and pure functions, so they pass through ``jit`` and ``vmap``.
@@ -108,9 +108,10 @@ class Trace(NamedTuple):
     final: dict | None = None
 
 
-class Cell(NamedTuple):
-    """One compiled learning cell (:func:`make_cell`): ``start(keys, noise) -> (carry, Row)``,
-    ``step(carry, keys, noise, n, p, which) -> (carry, Row)`` and ``noise(keys) -> EvalNoise``
+class LoopProgram(NamedTuple):
+    """The compiled programs of the learning loop (:func:`make_loop_program`): ``start(keys,
+    noise) -> (carry, Row)``, ``step(carry, keys, noise, n, p, which) -> (carry, Row)`` and
+    ``noise(keys) -> EvalNoise``
     (the seeds' test noise, :func:`noise_program`), each compiled once and reused by every
     method that shares the cell."""
 

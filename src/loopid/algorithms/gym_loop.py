@@ -12,7 +12,7 @@ learner (each sample seen once), solves for ``π_n`` and tests it. The rows are 
 
 Only the plant differs: collection and testing are Python driving the vector env; the learner's
 update, its losses and the solve are one jitted function vmapped over seeds (compiled once per
-run and shared by every method through ``cell``).
+run and shared by every method through ``program``).
 
 Randomness: slot seeds are ``SeedSequence([seed, n, stream]).generate_state(k, uint32)`` with
 the host streams of :mod:`loopid.algorithms.keys`: 1 (policy), 2 (ν) and 3 (test, with n = 0:
@@ -36,6 +36,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from loopid._renamed import renamed, renamed_argument
 from loopid.algorithms.keys import HOST_EVALUATE, HOST_NU, HOST_POLICY, HOST_TEST
 from loopid.algorithms.loop import (
     Agent,
@@ -110,7 +111,7 @@ def slot_seeds(seed: int, n: int, stream: int, count: int) -> list[int]:
     return [int(s) for s in state]
 
 
-class HostCell(NamedTuple):
+class HostLoopProgram(NamedTuple):
     """The jitted, seed-vmapped pieces: ``start(S) -> (carry, K, info)`` and ``learn(carry, pol,
     nu, keys, n, p) -> (carry, K, info, stats)``."""
 
@@ -123,7 +124,7 @@ class _Carry(NamedTuple):
     loss_sum: jax.Array
 
 
-def make_host_cell(agent: Agent, *, samples: int, with_nu: bool = True) -> HostCell:
+def make_host_program(agent: Agent, *, samples: int, with_nu: bool = True) -> HostLoopProgram:
     """Compile-once pieces of :func:`run_learning_host` (shared by methods differing in ``p_n``)."""
 
     def first(_):
@@ -146,7 +147,7 @@ def make_host_cell(agent: Agent, *, samples: int, with_nu: bool = True) -> HostC
         return _Carry(learner, loss_sum), K, info, stats
 
     learn = jax.jit(jax.vmap(one, in_axes=(0, 0, 0, 0, None, None)))
-    return HostCell(start, learn)
+    return HostLoopProgram(start, learn)
 
 
 def _transitions(r: Rollouts, S: int) -> Transitions:
@@ -226,15 +227,16 @@ def run_learning_host(
     termination_cost: float = 0.0,
     cost_cap: float = 1e8,
     progress: Callable[[int, Row], None] | None = None,
-    cell: HostCell | None = None,
+    program: HostLoopProgram | None = None,
     controller: Callable[[Any, Any], Any] | None = None,
+    cell: HostLoopProgram | None = None,
 ) -> Trace:
     """Run one learning method on a host system for ``len(fractions)`` iterations, every seed.
 
     ``fractions[n−1]`` = ``p_n`` (``fractions[0]`` unused); ``cost(obs, action) -> float`` is the
     test cost (:class:`~loopid.systems.from_gymnasium.ObservationCost` or any callable);
-    ``progress(n, row)`` after each iteration; ``cell`` from :func:`make_host_cell` to reuse its
-    compilation.
+    ``progress(n, row)`` after each iteration; ``program`` from :func:`make_host_program` to reuse
+    its compilation (``cell``: its earlier name).
     ``controller(learner_states, K) -> policy``: what flies the policy's training and test
     episodes, given every seed's learner state (leading seed axis) and gains (a model-predictive
     controller re-plans on the seed's model); default the gains ``K`` themselves.
@@ -251,8 +253,9 @@ def run_learning_host(
     keys = seed_keys(seeds)
     seeds = np.asarray(seeds)
     S = len(seeds)
-    if cell is None:
-        cell = make_host_cell(agent, samples=samples, with_nu=nu is not None)
+    program = renamed_argument("run_learning_host", "cell", "program", cell, program)
+    if program is None:
+        program = make_host_program(agent, samples=samples, with_nu=nu is not None)
     runs = -(-samples // system.horizon)
 
     def flies(carry, K):
@@ -265,7 +268,7 @@ def run_learning_host(
         return costs.mean(1), np.median(costs, axis=1), div.sum(1)
 
     def start():
-        carry, K, info = cell.start(jnp.zeros(S))
+        carry, K, info = program.start(jnp.zeros(S))
         zero, count = np.zeros(S), np.zeros(S, np.int64)
         return (carry, K), _row(*test(flies(carry, K)), zero, zero, zero, count, count, info)
 
@@ -288,7 +291,7 @@ def run_learning_host(
         half = S * runs
         pol = _transitions(Rollouts(*(a[:half] for a in r)), S)
         from_nu = _transitions(Rollouts(*(a[half:] for a in r)), S) if nu is not None else pol
-        carry, K, info, stats = cell.learn(
+        carry, K, info, stats = program.learn(
             carry, pol, from_nu, keys, jnp.int32(n), jnp.float64(fractions[n - 1])
         )
         return (carry, K), _row(*test(flies(carry, K)), *(np.asarray(a) for a in stats), info)
@@ -314,3 +317,13 @@ def _row(mean, median, div, loss_nu, loss_pol, online, pol_n, valid_n, info) -> 
         spectral_radius=np.asarray(info.spectral_radius, np.float64),
     )
     return Row(**fields, extra={})
+
+
+#: Names of earlier releases (warn, and go in the next one).
+__getattr__ = renamed(
+    __name__,
+    {
+        "HostCell": (__name__, "HostLoopProgram"),
+        "make_host_cell": (__name__, "make_host_program"),
+    },
+)

@@ -37,12 +37,13 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from loopid._renamed import renamed, renamed_argument
 from loopid.algorithms.collect import policy_samples
 from loopid.algorithms.contracts import (
     Agent,
-    Cell,
     Diagnostics,
     EvalNoise,
+    LoopProgram,
     Row,
     SolverInfo,
     Trace,
@@ -221,7 +222,7 @@ def _evaluate(
     return costs, div, carry
 
 
-def make_cell(
+def make_loop_program(
     plant: LoopPlant,
     agent: Agent,
     nu: Callable[[jax.Array, int], Transitions] | Sequence[Callable] | None,
@@ -235,7 +236,7 @@ def make_cell(
     diagnostics: Diagnostics | None = None,
     controller: Callable[[Any, jax.Array], Any] | None = None,
 ):
-    """Build the :class:`Cell` ``(start, step, noise)``, jitted, over all seeds at once.
+    """Build the :class:`LoopProgram` ``(start, step, noise)``, jitted, over all seeds at once.
 
     Collection and the learner's update are vmapped over seeds; the solve runs as the agent's
     ``policies`` says (default seed by seed, ``seeds_in_turn``) and the test trajectories of all
@@ -369,7 +370,7 @@ def make_cell(
         the initial model solved and tested (the same compiled ``step``)."""
         return step(init(_lane_keys(keys, methods)), keys, noise, *_first_iteration(methods))
 
-    return Cell(start, step, noise_program(plant, n_test, test_policy))
+    return LoopProgram(start, step, noise_program(plant, n_test, test_policy))
 
 
 def _lane_keys(keys: jax.Array, methods: int) -> jax.Array:
@@ -393,8 +394,10 @@ def program_bytes(compiled) -> int:
     )  # fmt: skip
 
 
-def cell_memory(cell: Cell, seeds: int, *, test_only: bool = False, methods: int = 1) -> int:
-    """Peak bytes of a :class:`Cell`'s programs for ``seeds`` seeds of ``methods`` methods
+def program_memory(
+    program: LoopProgram, seeds: int, *, test_only: bool = False, methods: int = 1
+) -> int:
+    """Peak bytes of a :class:`LoopProgram`'s programs for ``seeds`` seeds of ``methods`` methods
     (:func:`program_bytes`): the larger of the test-noise program and one ``step`` (which holds
     the noise, the carry and the row). ``test_only``: the noise program alone (a fixed
     policy's test, or the policy-gradient baseline's, reads the noise in place and keeps one
@@ -403,14 +406,14 @@ def cell_memory(cell: Cell, seeds: int, *, test_only: bool = False, methods: int
     Both programs are compiled for ``seeds`` seeds exactly as :func:`run_lanes` calls them,
     so a run of that many seeds in this process reuses the compilation (JAX's executable cache)."""
     keys = jax.ShapeDtypeStruct((int(seeds),), jax.random.key(0).dtype)
-    noise = jax.eval_shape(cell.noise, keys)
-    peak = program_bytes(cell.noise.lower(keys).compile())
+    noise = jax.eval_shape(program.noise, keys)
+    peak = program_bytes(program.noise.lower(keys).compile())
     if test_only:
         return peak
     noise = jax.eval_shape(lambda w: lane_noise(w, methods), noise)
-    carry = jax.eval_shape(lambda k, w: cell.start(k, w, methods)[0], keys, noise)
+    carry = jax.eval_shape(lambda k, w: program.start(k, w, methods)[0], keys, noise)
     args = (carry, keys, noise, *_first_iteration(methods))
-    return max(peak, program_bytes(cell.step.lower(*args).compile()))
+    return max(peak, program_bytes(program.step.lower(*args).compile()))
 
 
 def run_learning(
@@ -426,24 +429,27 @@ def run_learning(
     gamma: float = 0.99,
     test_policy: str = "last",
     progress: Callable[[int, Row], None] | None = None,
-    cell=None,
+    program: LoopProgram | None = None,
     which: int = 0,
     noise: EvalNoise | None = None,
+    cell: LoopProgram | None = None,
 ) -> Trace:
     """Run one learning method for ``len(fractions)`` iterations on every seed
     (:func:`run_lanes` with one method).
 
     ``fractions[n−1]`` is the probability ``p_n`` that a slot of iteration n's batch comes from
     the policy (``fractions[0]`` is unused: iteration 1 collects nothing). ``progress(n, row)`` is
-    called after each iteration with that iteration's :class:`Row` (leaves ``[S]``). ``cell``:
-    a :class:`Cell` from :func:`make_cell` with the same arguments, to reuse its compilation
-    across methods (DAgger, Batch, Abbeel) and calls; ``which`` picks the ν of a list.
-    ``noise``: the seeds' :class:`EvalNoise` (default: the cell's ``noise(keys)``).
+    called after each iteration with that iteration's :class:`Row` (leaves ``[S]``).
+    ``program``: a :class:`LoopProgram` from :func:`make_loop_program` with the same arguments,
+    to reuse its compilation across methods (DAgger, Batch, Abbeel) and calls (``cell``: its
+    earlier name); ``which`` picks the ν of a list. ``noise``: the seeds' :class:`EvalNoise`
+    (default: the program's ``noise(keys)``).
     """
+    program = renamed_argument("run_learning", "cell", "program", cell, program)
     return run_lanes(
         plant, agent, nu, [fractions], seeds, samples=samples, n_test=n_test, mode=mode,
-        gamma=gamma, test_policy=test_policy, progress=progress, cell=cell, which=[which],
-        noise=noise,
+        gamma=gamma, test_policy=test_policy, progress=progress, program=program,
+        which=[which], noise=noise,
     )[0]  # fmt: skip
 
 
@@ -460,13 +466,15 @@ def run_lanes(
     gamma: float = 0.99,
     test_policy: str = "last",
     progress: Callable[[int, Row], None] | None = None,
-    cell=None,
+    program: LoopProgram | None = None,
     which: Sequence[int] = (0,),
     noise: EvalNoise | None = None,
+    cell: LoopProgram | None = None,
 ) -> list[Trace]:
     """Run M learning methods on every seed as one *lane set*: the lanes are the (method, seed)
     pairs, ``M·S`` of them, method-major, and every iteration of all of them is one call of the
-    cell's ``step``. Returns one :class:`Trace` per method.
+    program's ``step`` (``program``, ``cell``: as in :func:`run_learning`). Returns one
+    :class:`Trace` per method.
 
     A method is data: its row of ``schedules [M, N]`` (the policy fractions ``p_n``, as
     ``fractions`` of :func:`run_learning`) and its ν index ``which[m]``. Every draw depends on
@@ -486,12 +494,13 @@ def run_lanes(
         raise ValueError(f"policy fractions must lie in [0, 1], got {schedules.tolist()}")
     which = jnp.asarray(np.asarray(which, dtype=np.int32).reshape(methods))
     keys = seed_keys(seeds)
-    if cell is None:
-        cell = make_cell(
+    program = renamed_argument("run_lanes", "cell", "program", cell, program)
+    if program is None:
+        program = make_loop_program(
             plant, agent, nu, samples=samples, iterations=iterations, n_test=n_test, mode=mode,
             gamma=gamma, test_policy=test_policy,
         )  # fmt: skip
-    start, step, noise_of = cell
+    start, step, noise_of = program
     noise = lane_noise(noise_of(keys) if noise is None else noise, methods)
 
     def one(carry, n):
@@ -598,9 +607,20 @@ def _trace(seeds, samples: int, rows: list[Row], final: dict | None = None) -> T
     return Trace(np.asarray(seeds), iteration, (iteration - 1) * samples, stacked, final)
 
 
+#: Names of earlier releases (warn, and go in the next one).
+__getattr__ = renamed(
+    __name__,
+    {
+        "Cell": ("loopid.algorithms.contracts", "LoopProgram"),
+        "make_cell": (__name__, "make_loop_program"),
+        "cell_memory": (__name__, "program_memory"),
+    },
+)
+
 __all__ = [  # the contracts and key streams, importable from here as before
-    "EVALUATE", "TEST_POLICIES", "Agent", "Cell", "Diagnostics", "EvalNoise", "IterationKeys",
-    "Row", "SolverInfo", "Trace", "at_least", "cell_memory", "drive", "eval_noise",
-    "iteration_key", "iteration_keys", "lane_noise", "learning_step", "make_cell", "noise_program",
-    "run_fixed_policy", "run_lanes", "run_learning", "seed_keys", "trajectory_mean",
+    "EVALUATE", "TEST_POLICIES", "Agent", "Diagnostics", "EvalNoise", "IterationKeys",
+    "LoopProgram", "Row", "SolverInfo", "Trace", "at_least", "drive", "eval_noise",
+    "iteration_key", "iteration_keys", "lane_noise", "learning_step", "make_loop_program",
+    "noise_program", "program_memory", "run_fixed_policy", "run_lanes", "run_learning",
+    "seed_keys", "trajectory_mean",
 ]  # fmt: skip

@@ -9,8 +9,9 @@ warm-started from its previous plan shifted by ``every`` steps, and between re-p
 plan's feedback ``Δu = U_j − K_j(Δx − X_j)`` (j = steps since the plan). Everything else is the
 plant's: the system's step, the delay FIFO (under ``fifo`` the command acts d steps later, as
 for gains), the noise, the safe region, the cost and its cap (:mod:`loopid.algorithms.plant`).
-The loop flies it through :func:`loopid.algorithms.loop.make_cell`'s ``controller`` (the seed's
-model parameters), so one ``jit`` holds the planner, every seed and every test trajectory.
+The loop flies it through :func:`loopid.algorithms.loop.make_loop_program`'s ``controller``
+(the seed's model parameters), so one ``jit`` holds the planner, every seed and every test
+trajectory.
 
 Shape of the computation: an episode is ``⌈horizon / every⌉`` *blocks*; a block plans once and
 then runs ``every`` steps of the plant (a ``lax.scan`` inside a ``lax.scan``). Under ``vmap`` a

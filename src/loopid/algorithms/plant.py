@@ -123,27 +123,31 @@ def flatten(tr: Transitions) -> Transitions:
 @runtime_checkable
 class LoopPlant(Protocol):
     """What Algorithm 1 (:mod:`loopid.algorithms.loop`) needs of a real system: the contract that
-    :class:`Plant` (JAX systems) and :class:`loopid.algorithms.mdp_agent.MDPPlant` (finite MDPs)
-    implement. Shapes: ``K [horizon, ...]`` the policy, ``S`` seeds, ``n_test`` test runs.
+    :class:`Plant` (JAX systems), :class:`loopid.algorithms.mdp_agent.MDPPlant` (finite MDPs)
+    and :func:`loopid.algorithms.mpc_plant.mpc_plant` implement. ``policy`` is what the plant
+    flies: gains ``K [horizon, m, n]`` for :class:`Plant`, action probabilities ``[states,
+    actions]`` for ``MDPPlant``, a model's parameters (any pytree) that MPC re-plans on for
+    ``mpc_plant``. Shapes: ``S`` seeds, ``n_test`` test runs.
 
     - ``horizon``: steps of one training rollout and of one test trajectory.
-    - ``rollout(K, key) -> transitions [horizon]``: one training rollout of policy ``K`` (a
-      NamedTuple of arrays with a leading ``[horizon]`` axis and a boolean ``mask``).
+    - ``rollout(policy, key) -> transitions [horizon]``: one training rollout (a NamedTuple of
+      arrays with a leading ``[horizon]`` axis and a boolean ``mask``).
     - ``eval_noise(key, n_test) -> [n_test, ...]``: the noise of ``n_test`` test runs.
-    - ``eval_one(K, noise) -> (cost, diverged)``: one test run (scalars).
-    - ``eval_seeds(K [S, ...], noise) -> (costs [S, n_test], diverged [S, n_test])``: every
-      seed's test runs; ``noise`` in the column layout of :func:`noise_columns`.
+    - ``eval_one(policy, noise) -> (cost, diverged)``: one test run (scalars).
+    - ``eval_seeds(policies, noise) -> (costs [S, n_test], diverged [S, n_test])``: every
+      seed's test runs (``policies``: a leading seed axis); ``noise`` in the column layout of
+      :func:`noise_columns`.
     """
 
     horizon: int
 
-    def rollout(self, K, key, *args): ...
+    def rollout(self, policy, key, *args): ...
 
     def eval_noise(self, key, n_test: int): ...
 
-    def eval_one(self, K, noise): ...
+    def eval_one(self, policy, noise): ...
 
-    def eval_seeds(self, K, noise): ...
+    def eval_seeds(self, policies, noise): ...
 
 
 class Plant(NamedTuple):

@@ -6,7 +6,7 @@ A cell runs all its seeds as one vmapped program, so its memory grows with the s
 
 - **Estimate.** A family's ``memory(config, method, seeds) -> bytes`` gives the peak bytes of
   the cell's compiled programs for that many seeds, from XLA's own buffer assignment
-  (:func:`loopid.algorithms.loop.cell_memory`): arguments + outputs + temporaries − donated
+  (:func:`loopid.algorithms.loop.program_memory`): arguments + outputs + temporaries − donated
   buffers, the largest over the programs a cell runs one after another. Each task computes it
   for its own seeds, in the process that runs it, before it runs
   (:func:`loopid.experiments.execute.run_chunk`): the compilation it needs is the one the task

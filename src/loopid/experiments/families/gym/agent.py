@@ -1,5 +1,5 @@
 """A gym scenario's agent, compiled once: the cost, the nominal model, the model class, the
-planner and the host cell every method of a run shares.
+planner and the host loop program every method of a run shares.
 
 In the env's coordinates (``Δx [n] = [o[observe] − o*; 1]``, ``Δu [m] = a − a_op``) the agent is
 the paper's by default: a linear offset model learned by FTRL on top of a nominal ``A [n, n]``,
@@ -20,7 +20,7 @@ from typing import Any, NamedTuple
 import jax
 import numpy as np
 
-from loopid.algorithms.gym_loop import gym_nominal_model, make_host_cell
+from loopid.algorithms.gym_loop import gym_nominal_model, make_host_program
 from loopid.experiments import model_planner
 from loopid.experiments.families.gym.env import EnvShape
 from loopid.experiments.families.gym.scenario import GymScenario
@@ -72,14 +72,14 @@ def nominal(v: dict, shape: EnvShape) -> LinearOffsetModel:
 
 
 class CompiledAgent(NamedTuple):
-    """A scenario's agent, its compiled host cell
-    (:func:`loopid.algorithms.gym_loop.make_host_cell`) and what flies its policy's episodes
+    """A scenario's agent, its compiled host loop program
+    (:func:`loopid.algorithms.gym_loop.make_host_program`) and what flies its policy's episodes
     (``controller(learner_states, K) -> policy``; None: the gains). Under ``[planner] kind =
     "mpc"``: ``mpc(params) -> policy``, the MPC of the models ``params`` (a leading seed axis),
     and ``model``, the model class whose saved arrays it re-plans on (``loopid evaluate``)."""
 
     agent: Any
-    cell: Any
+    program: Any
     controller: Any = None
     mpc: Any = None
     model: Any = None
@@ -95,7 +95,7 @@ def compiled_agent(s: GymScenario, shape: EnvShape) -> CompiledAgent:
     if model_planner.is_paper_agent(s):
         Q, R = cost.augmented()  # sized to the system by design_cost
         agent = model_planner.make_agent(s, model, Q, R, shape.horizon)
-        return CompiledAgent(agent, make_host_cell(agent, samples=s.samples))
+        return CompiledAgent(agent, make_host_program(agent, samples=s.samples))
     return _planning_agent(s, v, shape, cost, model)
 
 
@@ -138,9 +138,9 @@ def _planning_agent(s: GymScenario, v: dict, shape: EnvShape, cost, nominal) -> 
         s, nominal, Q, R, shape.horizon, start=_start(v["planner_start"], shape), U0=U0,
         plan_cost=plan_cost, alternatives=alternatives, model=mc,
     )  # fmt: skip
-    cell = make_host_cell(agent, samples=s.samples)
+    program = make_host_program(agent, samples=s.samples)
     if s.planner_kind != "mpc":
-        return CompiledAgent(agent, cell)
+        return CompiledAgent(agent, program)
 
     def mpc(params):
         return MPCController(
@@ -153,4 +153,4 @@ def _planning_agent(s: GymScenario, v: dict, shape: EnvShape, cost, nominal) -> 
     def controller(states, K):
         return mpc(jax.vmap(mc.params)(states))
 
-    return CompiledAgent(agent, cell, controller, mpc, mc)
+    return CompiledAgent(agent, program, controller, mpc, mc)

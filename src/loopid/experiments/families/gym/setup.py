@@ -43,7 +43,8 @@ class Setup(NamedTuple):
         (:attr:`~.scenario.GymScenario.plain`).
       system: the open env (:class:`~loopid.systems.from_gymnasium.GymSystem`), the loop's plant.
       shape: its sizes and coordinates (:class:`~.env.EnvShape`).
-      compiled: the agent, its compiled host cell and controller (:class:`~.agent.CompiledAgent`).
+      compiled: the agent, its compiled host loop program and controller
+        (:class:`~.agent.CompiledAgent`).
       exploration: ν (:class:`~loopid.algorithms.gym_loop.Exploration`).
       test_cost: an :class:`~loopid.systems.from_gymnasium.ObservationCost`, ``"reward"`` or a
         callable ``cost(obs, action)``.
@@ -112,7 +113,7 @@ def run(method: str, s: GymScenario, seeds=None, progress: Progress | None = Non
             setup.system, setup.compiled.agent, setup.exploration, fractions,
             [int(x) for x in seeds], samples=s.samples, n_test=s.test_trajectories,
             cost=setup.test_cost, termination_cost=s.termination, cost_cap=s.cost_cap,
-            progress=progress, cell=setup.compiled.cell, controller=setup.compiled.controller,
+            progress=progress, program=setup.compiled.program, controller=setup.compiled.controller,
         )  # fmt: skip
 
 

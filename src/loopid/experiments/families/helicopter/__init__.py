@@ -19,12 +19,18 @@ report: the final costs with each panel's readings of the details the paper leav
 animated (:mod:`loopid.experiments.families.helicopter.saved`).
 """
 
-from loopid.algorithms import helicopter_plant as core
+from loopid._renamed import renamed
 from loopid.algorithms import methods as M
 from loopid.experiments import model_planner
 from loopid.experiments.config import read_flat_file
 from loopid.experiments.families.base import Family
-from loopid.experiments.families.helicopter.assembly import Setup, agent, cell, program_key, setup
+from loopid.experiments.families.helicopter.assembly import (
+    Setup,
+    agent,
+    loop_program,
+    program_key,
+    setup,
+)
 from loopid.experiments.families.helicopter.runs import (
     NOT_LANES,
     lane_sets,
@@ -43,24 +49,16 @@ from loopid.experiments.families.helicopter.saved import (
 )
 from loopid.experiments.scenarios import FIELDS, SCENARIOS, Scenario, scenario
 
-#: Names this module offered that live in the core now
-#: (:mod:`loopid.algorithms.helicopter_plant`).
-_MOVED = {"helicopter_plant": "helicopter_plant", "nominal_model": "helicopter_nominal_model"}
-
-
-def __getattr__(name: str):
-    if name in _MOVED:
-        import warnings
-
-        new = f"loopid.algorithms.helicopter_plant.{_MOVED[name]}"
-        warnings.warn(
-            f"loopid.experiments.families.helicopter.{name} is now {new}; the old name goes in "
-            "the next release",
-            DeprecationWarning,
-            stacklevel=2,
-        )
-        return getattr(core, _MOVED[name])
-    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+#: Names of earlier releases (warn, and go in the next one): the plant and initial model live
+#: in the core now (:mod:`loopid.algorithms.helicopter_plant`).
+__getattr__ = renamed(
+    __name__,
+    {
+        "helicopter_plant": ("loopid.algorithms.helicopter_plant", "helicopter_plant"),
+        "nominal_model": ("loopid.algorithms.helicopter_plant", "helicopter_nominal_model"),
+        "cell": (__name__, "loop_program"),
+    },
+)
 
 
 class HelicopterFamily(Family):
@@ -95,7 +93,7 @@ FAMILY = HelicopterFamily()
 
 
 __all__ = [
-    "FAMILY", "NOT_LANES", "HelicopterFamily", "Setup", "agent", "animate", "cell", "evaluate",
-    "figure", "lane_sets", "load", "memory", "program_key", "report", "run", "run_lanes", "setup",
-    "shared", "trajectories",
+    "FAMILY", "NOT_LANES", "HelicopterFamily", "Setup", "agent", "animate", "evaluate",
+    "figure", "lane_sets", "load", "loop_program", "memory", "program_key", "report", "run",
+    "run_lanes", "setup", "shared", "trajectories",
 ]  # fmt: skip

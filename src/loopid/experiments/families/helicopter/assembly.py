@@ -1,6 +1,6 @@
 """What a helicopter scenario's methods share, built once: the plant, the expert's gains, the
-initial model (:class:`Setup`), the agent, the model class, MPC's settings, the compiled cell
-with its ν samplers, and a seed chunk's test noise.
+initial model (:class:`Setup`), the agent, the model class, MPC's settings, the compiled loop
+program with its ν samplers, and a seed chunk's test noise.
 
 Each is kept in a bounded cache keyed on :func:`program_key` (the scenario itself with the
 fields that cannot change a compiled program, its name and seed count, set to fixed values), so
@@ -19,7 +19,7 @@ from loopid.algorithms import helicopter_plant as core
 from loopid.algorithms.expert import expert_gains
 from loopid.algorithms.loop import (
     Agent,
-    make_cell,
+    make_loop_program,
     seed_keys,
 )
 from loopid.algorithms.plant import Plant
@@ -135,7 +135,7 @@ def agent(s: Scenario) -> Agent:
 
 
 @lru_cache(maxsize=8)
-def _cell(key: Scenario):
+def _program(key: Scenario):
     st = _setup(key)
     nus = [
         make_nu(
@@ -148,12 +148,12 @@ def _cell(key: Scenario):
     if key.planner_kind == "mpc":
         mpc, controller = _mpc(key)
         plant = mpc.plant
-    cell = make_cell(
+    program = make_loop_program(
         plant, _agent(key), nus, samples=key.samples, iterations=key.iterations,
         n_test=key.test_trajectories, mode=key.sampling, gamma=key.gamma,
         test_policy=key.test_policy, controller=controller,
     )  # fmt: skip
-    return nus, cell
+    return nus, program
 
 
 @lru_cache(maxsize=2)
@@ -161,10 +161,10 @@ def _noise(key: Scenario, seeds: tuple[int, ...]):
     """The test noise of ``seeds`` (:class:`loopid.algorithms.loop.EvalNoise`), computed once per
     scenario and seed chunk and shared by every method a process runs on them (a pure function
     of the seeds: each method reads the same arrays it would have drawn itself)."""
-    return _cell(key)[1].noise(seed_keys(np.asarray(seeds)))
+    return _program(key)[1].noise(seed_keys(np.asarray(seeds)))
 
 
-def cell(s: Scenario):
-    """The ν samplers (ν_t, ν_e, ν_en) and the one compiled cell that DAgger, Batch and Abbeel
-    share on this scenario, whichever ν they draw from (a traced switch)."""
-    return _cell(program_key(s))
+def loop_program(s: Scenario):
+    """The ν samplers (ν_t, ν_e, ν_en) and the one compiled loop program that DAgger, Batch and
+    Abbeel share on this scenario, whichever ν they draw from (a traced switch)."""
+    return _program(program_key(s))

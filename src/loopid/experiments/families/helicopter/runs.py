@@ -7,7 +7,7 @@ from loopid.algorithms import methods as M
 from loopid.algorithms.loop import (
     Trace,
     at_least,
-    cell_memory,
+    program_memory,
     run_fixed_policy,
 )
 from loopid.algorithms.loop import run_lanes as run_learning_lanes
@@ -15,8 +15,8 @@ from loopid.algorithms.policy_gradient import run_policy_gradient
 from loopid.experiments.families.base import Progress
 from loopid.experiments.families.helicopter.assembly import (
     _agent,
-    _cell,
     _noise,
+    _program,
     _setup,
     program_key,
     setup,
@@ -87,28 +87,28 @@ def run_lanes(
         return at_least(lambda pad: run_lanes(methods, s, pad, progress, padded=True), seeds)
     key = program_key(s)
     st = _setup(key)
-    nus, compiled = _cell(key)
+    nus, compiled = _program(key)
     schedules = [
         M.policy_fractions(m, s.iterations, dagger_fraction=s.dagger_fraction) for m in methods
     ]
     traces = run_learning_lanes(
         st.plant, _agent(key), nus, schedules, seeds, samples=s.samples,
         n_test=s.test_trajectories, mode=s.sampling, gamma=s.gamma, test_policy=s.test_policy,
-        progress=progress, cell=compiled, which=[NU_KINDS.index(M.nu_kind(m)) for m in methods],
+        progress=progress, program=compiled, which=[NU_KINDS.index(M.nu_kind(m)) for m in methods],
         noise=_noise(key, tuple(int(seed) for seed in seeds)),
     )  # fmt: skip
     return dict(zip(methods, traces, strict=True))
 
 
 def memory(s: Scenario, method: str | tuple[str, ...], seeds: int) -> int:
-    """Peak bytes of the cell's programs for ``seeds`` seeds (of each method of a lane set)
-    (:func:`loopid.algorithms.loop.cell_memory`). The expert and the policy-gradient baseline
+    """Peak bytes of the loop's programs for ``seeds`` seeds (of each method of a lane set)
+    (:func:`loopid.algorithms.loop.program_memory`). The expert and the policy-gradient baseline
     run the test-noise program and a test that reads it (plus, for PG, rollouts of one state per
     probe), so the noise program is their peak."""
     if isinstance(method, tuple):  # a lane set (run_lanes)
-        return cell_memory(_cell(program_key(s))[1], seeds, methods=len(method))
+        return program_memory(_program(program_key(s))[1], seeds, methods=len(method))
     M.check_method(method)
-    return cell_memory(_cell(program_key(s))[1], seeds, test_only=method in NOT_LANES)
+    return program_memory(_program(program_key(s))[1], seeds, test_only=method in NOT_LANES)
 
 
 def shared(s: Scenario, method: str) -> dict:

@@ -14,21 +14,22 @@ Scenarios (:data:`MDP_SCENARIOS`):
 Methods (:data:`MDP_METHODS`): ``dagger`` (p_n = ½), ``batch`` (p_n = 0), ``abbeel`` (ν at
 n = 2, then the policy only); the fractions come from
 :func:`loopid.algorithms.methods.policy_fractions`. Policy draws are ``geometric`` (exact
-draws from D_{μ,π}, the paper's analysis). Every method of a scenario shares one compiled cell.
+draws from D_{μ,π}, the paper's analysis). Every method of a scenario shares one compiled loop
+program.
 
 Extra result columns (:func:`loopid.algorithms.mdp_agent.mdp_diagnostics`): ``j_policy``,
 ``j_best``, ``j_mixture``, ``j_optimal``, ``bound`` (Theorem 3.1 while all data came from ν,
 Lemma 4.1 once the policies contribute), ``eps_prd_l1``, ``eps_prd_kl``, ``eps_mdl_l1``,
 ``eps_oc``, ``c_nu``, ``c_nu_policy``. ``test_cost`` is the exact J of the iteration's policy.
 
-One module per idea: :mod:`.scenario` (the scenarios, their MDP, ν, model and compiled cell,
+One module per idea: :mod:`.scenario` (the scenarios, their MDP, ν, model and compiled loop program,
 :func:`run_mdp`, saved policies reloaded and evaluated exactly) and :mod:`.figures` (the
 figure, the report section and ``trajectories.png``).
 """
 
 from dataclasses import fields
 
-from loopid.algorithms.loop import cell_memory
+from loopid.algorithms.loop import program_memory
 from loopid.experiments.config import read_flat_file
 from loopid.experiments.families.base import Family
 from loopid.experiments.families.mdp.figures import mdp_figure, report, trajectories
@@ -73,7 +74,7 @@ class MDPFamily(Family):
         mdp_figure(table, path)
 
     def memory(self, config, method, seeds):
-        return cell_memory(mdp_setup(config).cell, seeds)
+        return program_memory(mdp_setup(config).program, seeds)
 
 
 FAMILY = MDPFamily()

@@ -1,5 +1,5 @@
 """Finite-MDP scenarios (:class:`MDPScenario`): the MDP, ν, the model class and the compiled
-cell each scenario builds once (:func:`mdp_setup`), one method run on every seed
+loop program each scenario builds once (:func:`mdp_setup`), one method run on every seed
 (:func:`run_mdp`), and saved policies reloaded and evaluated exactly (:func:`load`,
 :func:`evaluate`). The family's overview is :mod:`loopid.experiments.families.mdp`.
 """
@@ -13,7 +13,7 @@ import jax
 import numpy as np
 
 from loopid.algorithms import methods as M
-from loopid.algorithms.loop import Row, Trace, at_least, make_cell, run_learning
+from loopid.algorithms.loop import Row, Trace, at_least, make_loop_program, run_learning
 from loopid.algorithms.mdp_agent import (
     classifier_model,
     counts_model,
@@ -152,30 +152,30 @@ def scenario_model(s: MDPScenario, mdp: FiniteMDP):
 
 
 class MDPSetup(NamedTuple):
-    """Everything a scenario's methods share, including the compiled cell."""
+    """Everything a scenario's methods share, including the compiled loop program."""
 
     mdp: FiniteMDP
     nu_dist: np.ndarray
     plant: object
     agent: object
     nu: Callable
-    cell: tuple
+    program: tuple
 
 
 @lru_cache(maxsize=8)
 def mdp_setup(s: MDPScenario) -> MDPSetup:
-    """Build (and cache) the scenario's MDP, ν, agent, diagnostics and compiled cell."""
+    """Build (and cache) the scenario's MDP, ν, agent, diagnostics and compiled loop program."""
     mdp = scenario_mdp(s)
     dist, nu = scenario_nu(s, mdp)
     model = scenario_model(s, mdp)
     plant = mdp_plant(mdp, s.horizon)
     agent = mdp_agent(mdp, model)
     diag = mdp_diagnostics(mdp, dist, model)
-    cell = make_cell(
+    program = make_loop_program(
         plant, agent, nu, samples=s.samples, iterations=s.iterations, n_test=1,
         mode="geometric", gamma=s.gamma, diagnostics=diag,
     )  # fmt: skip
-    return MDPSetup(mdp, dist, plant, agent, nu, cell)
+    return MDPSetup(mdp, dist, plant, agent, nu, program)
 
 
 def run_mdp(
@@ -196,7 +196,7 @@ def run_mdp(
     return at_least(
         lambda padded: run_learning(
             setup.plant, setup.agent, setup.nu, fractions, padded, samples=s.samples, n_test=1,
-            mode="geometric", gamma=s.gamma, progress=progress, cell=setup.cell,
+            mode="geometric", gamma=s.gamma, progress=progress, program=setup.program,
         ),
         np.asarray(seeds),
     )  # fmt: skip
