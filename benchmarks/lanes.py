@@ -43,8 +43,8 @@ def timed(f) -> tuple[float, object]:
 def bench(name: str, seeds: int, runs: int) -> None:
     s = scenario(name, seeds=seeds, iterations=ITERATIONS[name])
     key = H.program_key(s)
-    plant, agent = assembly._setup(key).plant, assembly._agent(key)
-    nus, cell = assembly._cell(key)
+    st = assembly._setup(key)
+    plant, agent, nus, cell = st.plant, st.agent, st.nus, st.program
     learning = [m for m in M.METHODS if m not in H.NOT_LANES]
     schedules = [M.policy_fractions(m, s.iterations) for m in learning]
     which = [NU_KINDS.index(M.nu_kind(m)) for m in learning]

@@ -29,8 +29,8 @@ def test_the_cell_flies_mpc_on_each_seeds_model():
     assert np.all(np.isfinite(trace.rows.test_cost))
     assert trace.final["K"].shape == (3, 400, 4, 21)
     key = family.program_key(s)
-    plant = assembly._mpc(key)[0].plant
-    noise = assembly._program(key)[1].noise(seed_keys(np.arange(3))).test
+    plant = assembly._setup(key).mpc.plant
+    noise = assembly._setup(key).program.noise(seed_keys(np.arange(3))).test
     costs, _ = jax.jit(plant.eval_seeds)(jnp.asarray(trace.final["W_features"]), noise)
     np.testing.assert_allclose(trajectory_mean(costs), trace.rows.test_cost[:, -1], rtol=1e-9)
 
@@ -40,8 +40,8 @@ def test_the_cell_flies_mpc_on_each_seeds_model():
     saved = {k: np.asarray(v) for k, v in trace.final.items()}
     evaluated = family.evaluate(s, saved, np.arange(3), 2)
     w = plant.eval_noise(jax.random.fold_in(jax.random.key(0), EVALUATE), 2)[0]
-    W0 = assembly._model(key).restore({"W_features": saved["W_features"][0]})
-    X, total = jax.jit(assembly._mpc(key)[0].flight)(W0, w)
+    W0 = assembly._setup(key).model.restore({"W_features": saved["W_features"][0]})
+    X, total = jax.jit(assembly._setup(key).mpc.flight)(W0, w)
     assert X.shape == (401, 21)
     np.testing.assert_allclose(evaluated[0, 0], min(float(total), s.cost_cap), rtol=1e-9)
     gains = family.evaluate(s, {"K": saved["K"]}, np.arange(3), 2)

@@ -1,15 +1,15 @@
-"""What a helicopter scenario's methods share, built once: the plant, the expert's gains, the
-initial model (:class:`Setup`), the agent, the model class, MPC's settings, the compiled loop
-program with its ν samplers, and a seed chunk's test noise.
+"""What a helicopter scenario's methods share, built once (:func:`setup`): the plant, the
+expert's gains, the initial model, the model class, the agent, the ν samplers, the compiled loop
+program and, under MPC, the plant flown by MPC with its settings; and a seed chunk's test noise.
 
-Each is kept in a bounded cache keyed on :func:`program_key` (the scenario itself with the
+Both are kept in a bounded cache keyed on :func:`program_key` (the scenario itself with the
 fields that cannot change a compiled program, its name and seed count, set to fixed values), so
 every method of a run shares one compilation and renamed copies of a panel (the readings study)
 share it too.
 """
 
 from functools import lru_cache
-from typing import NamedTuple
+from typing import Any, NamedTuple
 
 import jax
 import jax.numpy as jnp
@@ -17,11 +17,7 @@ import numpy as np
 
 from loopid.algorithms import helicopter_plant as core
 from loopid.algorithms.expert import expert_gains
-from loopid.algorithms.loop import (
-    Agent,
-    make_loop_program,
-    seed_keys,
-)
+from loopid.algorithms.loop import Agent, LoopProgram, make_loop_program, seed_keys
 from loopid.algorithms.plant import Plant
 from loopid.experiments import model_planner
 from loopid.experiments.scenarios import Scenario
@@ -32,17 +28,44 @@ from loopid.systems.tasks import make_task
 
 
 class Setup(NamedTuple):
-    """What a scenario's methods share: the plant, the expert's gains, the nominal model."""
+    """What a scenario's methods share, built once from its config (:func:`setup`).
+
+    Attributes:
+      plant: the helicopter under the scenario's task (:class:`loopid.algorithms.plant.Plant`).
+      K_expert: the expert's gains ``[T, 4, 21]`` (the LQR of the true simulator's
+        linearisation about the target, :func:`loopid.algorithms.expert.expert_gains`).
+      nominal: the initial model every learned offset adds to.
+      model: the ``model_*`` model class (:func:`loopid.experiments.model_planner.model_class`),
+        or None for the paper's linear offset model.
+      agent: the model-based agent (:func:`loopid.experiments.model_planner.make_agent`).
+      nus: the ν samplers ``[ν_t, ν_e, ν_en]`` (:data:`loopid.exploration.NU_KINDS`).
+      program: the one compiled loop program that DAgger, Batch and Abbeel share, whichever ν
+        they draw from (a traced switch).
+      mpc: under ``planner_kind = "mpc"``, the plant flown by MPC on the seed's learned model
+        (:func:`loopid.algorithms.mpc_plant.mpc_plant`), else None.
+      replanner: MPC's settings (:func:`loopid.control.replanner`), else None.
+    """
 
     plant: Plant
     K_expert: jax.Array
     nominal: LinearOffsetModel
+    model: Any
+    agent: Agent
+    nus: list
+    program: LoopProgram
+    mpc: Any
+    replanner: Any
 
 
 def program_key(s: Scenario) -> Scenario:
     """The cache key of ``s``: the scenario with its name and seed count fixed (neither changes
     a compiled program: the seeds are an argument, vmapped)."""
     return s.replace(name="program", seeds=1)
+
+
+def setup(s: Scenario) -> Setup:
+    """The :class:`Setup` of scenario ``s``, built once per :func:`program_key` (cached)."""
+    return _setup(program_key(s))
 
 
 @lru_cache(maxsize=8)
@@ -52,33 +75,48 @@ def _setup(key: Scenario) -> Setup:
         task, stop_norm=key.stop_norm, nu_pending=key.nu_pending, cost_cap=key.cost_cap,
         delay_mode=key.delay_mode,
     )  # fmt: skip
-    return Setup(
-        plant, expert_gains(task), core.helicopter_nominal_model(plant, key.funnel_nominal)
-    )
+    K_expert = expert_gains(task)
+    nominal = core.helicopter_nominal_model(plant, key.funnel_nominal)
+    paper, mpc = model_planner.is_paper_agent(key), key.planner_kind == "mpc"
+    model = model_planner.model_class(key, nominal) if not paper or mpc else None
+    agent = _agent(key, plant, nominal, model)
+    nus = [
+        make_nu(
+            kind, plant, K_expert, state_var=key.nu_state_var, action_var=key.nu_action_var,
+            expert_action_var=key.expert_action_var,
+        )
+        for kind in NU_KINDS
+    ]  # fmt: skip
+    flown, controller, replan = None, None, None
+    if mpc:  # MPC flies the seed's learned model (its parameters, the loop's controller)
+        from loopid.algorithms.mpc_plant import mpc_plant
+
+        replan = _replanner(key, plant, model)
+        flown = mpc_plant(plant, replan)
+        controller = lambda state, K: model.params(state)  # noqa: E731
+    program = make_loop_program(
+        plant if flown is None else flown.plant, agent, nus, samples=key.samples,
+        iterations=key.iterations, n_test=key.test_trajectories, mode=key.sampling,
+        gamma=key.gamma, test_policy=key.test_policy, controller=controller,
+    )  # fmt: skip
+    return Setup(plant, K_expert, nominal, model, agent, nus, program, flown, replan)
 
 
-def setup(s: Scenario) -> Setup:
-    """The shared :class:`~loopid.experiments.families.helicopter.assembly.Setup` of a
-    scenario (cached: the expert is computed once)."""
-    return _setup(program_key(s))
-
-
-@lru_cache(maxsize=8)
-def _agent(key: Scenario) -> Agent:
+def _agent(key: Scenario, plant: Plant, nominal: LinearOffsetModel, model) -> Agent:
     """The scenario's agent (:func:`loopid.experiments.model_planner.make_agent`): the paper's
     by default; a ``model_*`` model class (one global model for every step; the funnel's
     time-varying nominal is kept) is planned by iLQR on the task's quadratic cost from the task's
     start, over the task horizon (under ``mpc`` too: its gains are what the cell saves; MPC
-    flies, :func:`_mpc`)."""
-    st = _setup(key)
-    task, horizon = st.plant.task, st.plant.horizon
+    flies)."""
+    task, horizon = plant.task, plant.horizon
     target = jnp.asarray(task.target)
+    paper = model_planner.is_paper_agent(key)
     return model_planner.make_agent(
-        key, st.nominal, task.Q, task.R, horizon,
+        key, nominal, task.Q, task.R, horizon,
         start=helicopter.to_error(jnp.asarray(task.x0), target[0]),
         U0=np.zeros((horizon, helicopter.N_ACTION)),
-        alternatives=None if model_planner.is_paper_agent(key) else _alternatives(key),
-        model=None if model_planner.is_paper_agent(key) else _model(key),
+        alternatives=None if paper else _alternatives(key),
+        model=None if paper else model,
     )  # fmt: skip
 
 
@@ -96,34 +134,16 @@ def _alternatives(key: Scenario):
     return A
 
 
-@lru_cache(maxsize=8)
-def _model(key: Scenario):
-    """The scenario's model class (one object per program key: the planners compiled for its
-    ``dynamics`` are shared)."""
-    return model_planner.model_class(key, _setup(key).nominal)
-
-
-def _mpc(key: Scenario):
-    """``planner_kind = "mpc"``: the plant flown by MPC on the seed's learned model
-    (:func:`loopid.algorithms.mpc_plant.mpc_plant`, an :class:`MPCPlant`; ``planner_horizon``-step
-    plans, default the task horizon, re-planned every ``planner_every`` steps with
-    ``planner_iterations`` iLQR iterations, first from Δu = 0, the trim) and the loop's
-    controller, the seed's model parameters."""
-    from loopid.algorithms.mpc_plant import mpc_plant
-
-    st, model = _setup(key), _model(key)
-    return mpc_plant(st.plant, _replanner(key)), lambda state, K: model.params(state)
-
-
-def _replanner(key: Scenario):
-    """The MPC settings of :func:`_mpc` (:func:`loopid.control.replanner`)."""
+def _replanner(key: Scenario, plant: Plant, model):
+    """MPC's settings (:func:`loopid.control.replanner`): ``planner_horizon``-step plans on the
+    model's dynamics (default the task horizon), re-planned every ``planner_every`` steps with
+    ``planner_iterations`` iLQR iterations, first from Δu = 0, the trim."""
     from loopid.control import quadratic_cost, replanner
 
-    st, model = _setup(key), _model(key)
-    task = st.plant.task
+    task = plant.task
     return replanner(
         model.dynamics, quadratic_cost(task.Q, task.R), np.zeros(helicopter.N_ACTION),
-        horizon=key.planner_horizon or st.plant.horizon, every=key.planner_every,
+        horizon=key.planner_horizon or plant.horizon, every=key.planner_every,
         iterations=key.planner_iterations, alternatives=_alternatives(key),
     )  # fmt: skip
 
@@ -131,29 +151,14 @@ def _replanner(key: Scenario):
 def agent(s: Scenario) -> Agent:
     """The model-based agent of scenario ``s`` (default the paper's: linear offset model, FTRL,
     LQR; else its ``model_*`` model class planned by iLQR)."""
-    return _agent(program_key(s))
+    return setup(s).agent
 
 
-@lru_cache(maxsize=8)
-def _program(key: Scenario):
-    st = _setup(key)
-    nus = [
-        make_nu(
-            kind, st.plant, st.K_expert, state_var=key.nu_state_var, action_var=key.nu_action_var,
-            expert_action_var=key.expert_action_var,
-        )
-        for kind in NU_KINDS
-    ]  # fmt: skip
-    plant, controller = st.plant, None
-    if key.planner_kind == "mpc":
-        mpc, controller = _mpc(key)
-        plant = mpc.plant
-    program = make_loop_program(
-        plant, _agent(key), nus, samples=key.samples, iterations=key.iterations,
-        n_test=key.test_trajectories, mode=key.sampling, gamma=key.gamma,
-        test_policy=key.test_policy, controller=controller,
-    )  # fmt: skip
-    return nus, program
+def loop_program(s: Scenario) -> tuple[list, LoopProgram]:
+    """The ν samplers (ν_t, ν_e, ν_en) and the one compiled loop program that DAgger, Batch and
+    Abbeel share on this scenario, whichever ν they draw from (a traced switch)."""
+    st = setup(s)
+    return st.nus, st.program
 
 
 @lru_cache(maxsize=2)
@@ -161,10 +166,4 @@ def _noise(key: Scenario, seeds: tuple[int, ...]):
     """The test noise of ``seeds`` (:class:`loopid.algorithms.loop.EvalNoise`), computed once per
     scenario and seed chunk and shared by every method a process runs on them (a pure function
     of the seeds: each method reads the same arrays it would have drawn itself)."""
-    return _program(key)[1].noise(seed_keys(np.asarray(seeds)))
-
-
-def loop_program(s: Scenario):
-    """The ν samplers (ν_t, ν_e, ν_en) and the one compiled loop program that DAgger, Batch and
-    Abbeel share on this scenario, whichever ν they draw from (a traced switch)."""
-    return _program(program_key(s))
+    return _setup(key).program.noise(seed_keys(np.asarray(seeds)))

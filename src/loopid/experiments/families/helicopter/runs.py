@@ -13,14 +13,7 @@ from loopid.algorithms.loop import (
 from loopid.algorithms.loop import run_lanes as run_learning_lanes
 from loopid.algorithms.policy_gradient import run_policy_gradient
 from loopid.experiments.families.base import Progress
-from loopid.experiments.families.helicopter.assembly import (
-    _agent,
-    _noise,
-    _program,
-    _setup,
-    program_key,
-    setup,
-)
+from loopid.experiments.families.helicopter.assembly import _noise, program_key, setup
 from loopid.experiments.scenarios import Scenario
 from loopid.exploration import NU_KINDS
 from loopid.systems.tasks import is_hover
@@ -40,7 +33,7 @@ def run(method: str, s: Scenario, seeds=None, progress: Progress | None = None) 
 
 def _run(method: str, s: Scenario, seeds: np.ndarray, progress: Progress | None) -> Trace:
     key = program_key(s)
-    st = _setup(key)
+    st = setup(s)
     noise = _noise(key, tuple(int(seed) for seed in seeds))
     if method == "expert":
         return run_fixed_policy(
@@ -51,7 +44,7 @@ def _run(method: str, s: Scenario, seeds: np.ndarray, progress: Progress | None)
         # hover: the trim-holding base flies π_1's test trajectories (π_1 never acts from μ);
         # the funnel's π_1 acts, so its gains are the base there (policy_gradient docstring)
         return run_policy_gradient(
-            st.plant, _agent(key), seeds, iterations=s.iterations, samples=s.samples,
+            st.plant, st.agent, seeds, iterations=s.iterations, samples=s.samples,
             n_test=s.test_trajectories, horizon=s.pg_horizon, sigma=s.pg_sigma, step=s.pg_step,
             hold=is_hover(s.task), nu_state_var=s.nu_state_var, cost_cap=s.cost_cap,
             samples_mode=s.pg_samples, update=s.pg_update, progress=progress, noise=noise.test,
@@ -85,17 +78,16 @@ def run_lanes(
     seeds = np.arange(s.seeds) if seeds is None else np.asarray(seeds)
     if not padded:
         return at_least(lambda pad: run_lanes(methods, s, pad, progress, padded=True), seeds)
-    key = program_key(s)
-    st = _setup(key)
-    nus, compiled = _program(key)
+    st = setup(s)
     schedules = [
         M.policy_fractions(m, s.iterations, dagger_fraction=s.dagger_fraction) for m in methods
     ]
     traces = run_learning_lanes(
-        st.plant, _agent(key), nus, schedules, seeds, samples=s.samples,
+        st.plant, st.agent, st.nus, schedules, seeds, samples=s.samples,
         n_test=s.test_trajectories, mode=s.sampling, gamma=s.gamma, test_policy=s.test_policy,
-        progress=progress, program=compiled, which=[NU_KINDS.index(M.nu_kind(m)) for m in methods],
-        noise=_noise(key, tuple(int(seed) for seed in seeds)),
+        progress=progress, program=st.program,
+        which=[NU_KINDS.index(M.nu_kind(m)) for m in methods],
+        noise=_noise(program_key(s), tuple(int(seed) for seed in seeds)),
     )  # fmt: skip
     return dict(zip(methods, traces, strict=True))
 
@@ -106,9 +98,9 @@ def memory(s: Scenario, method: str | tuple[str, ...], seeds: int) -> int:
     run the test-noise program and a test that reads it (plus, for PG, rollouts of one state per
     probe), so the noise program is their peak."""
     if isinstance(method, tuple):  # a lane set (run_lanes)
-        return program_memory(_program(program_key(s))[1], seeds, methods=len(method))
+        return program_memory(setup(s).program, seeds, methods=len(method))
     M.check_method(method)
-    return program_memory(_program(program_key(s))[1], seeds, test_only=method in NOT_LANES)
+    return program_memory(setup(s).program, seeds, test_only=method in NOT_LANES)
 
 
 def shared(s: Scenario, method: str) -> dict:

@@ -14,13 +14,7 @@ from loopid.algorithms.loop import (
     seed_keys,
 )
 from loopid.experiments import model_planner
-from loopid.experiments.families.helicopter.assembly import (
-    _model,
-    _mpc,
-    _replanner,
-    program_key,
-    setup,
-)
+from loopid.experiments.families.helicopter.assembly import setup
 from loopid.experiments.findings import findings_section
 from loopid.experiments.report import final_cost_sections
 from loopid.experiments.scenarios import Scenario, readings_line
@@ -70,10 +64,9 @@ def load(s: Scenario, method: str, arrays: dict):
     delay = st.plant.task.delay if s.delay_mode == "latency" else 0
     controller = GainController(arrays["K"], error, np.zeros(helicopter.N_ACTION), delay)
     if _flew_mpc(s, arrays):
-        key = program_key(s)
-        params = _model(key).restore(arrays)
+        params = st.model.restore(arrays)
         zero = np.zeros(helicopter.N_ACTION)
-        controller = ReplanningController(_replanner(key), params, error, zero, helicopter.N_STATE)
+        controller = ReplanningController(st.replanner, params, error, zero, helicopter.N_STATE)
     model = None  # the MLP's network is saved (mlp.*) but not rebuilt here
     if "W" in arrays or "W_features" in arrays:  # the saved nominal, else the scenario's
         A, B = arrays.get("shared.A", st.nominal.A), arrays.get("shared.B", st.nominal.B)
@@ -93,12 +86,13 @@ def evaluate(s: Scenario, arrays: dict, seeds, episodes: int, env=None) -> np.nd
     re-planning on each seed's saved model."""
     if env is not None:
         raise ValueError(f"--env {env!r} applies to gym runs, not to {s.name}")
-    plant, policy = setup(s).plant, jax.numpy.asarray(arrays["K"])
+    st = setup(s)
+    plant, policy = st.plant, jax.numpy.asarray(arrays["K"])
     if _flew_mpc(s, arrays):
         from loopid.algorithms.planning_agent import restore_seeds
 
-        plant = _mpc(program_key(s))[0].plant
-        policy = restore_seeds(_model(program_key(s)), arrays)
+        plant = st.mpc.plant
+        policy = restore_seeds(st.model, arrays)
     noise = noise_program(plant, episodes, "last", EVALUATE)(seed_keys(seeds)).test
     costs, _ = jax.jit(plant.eval_seeds)(policy, noise)
     return np.asarray(costs)
@@ -119,7 +113,8 @@ def _flights(run_dir, s: Scenario, methods, seed: int) -> dict:
     from loopid.experiments import artifacts
     from loopid.experiments.flights import fly
 
-    plant = setup(s).plant
+    st = setup(s)
+    plant = st.plant
     key = stream_key(jax.random.key(int(seed)), TEST)  # the loop's test noise
     noise = plant.eval_noise(key, 1)[0]
     flights = {}
@@ -127,8 +122,8 @@ def _flights(run_dir, s: Scenario, methods, seed: int) -> dict:
         _, arrays = artifacts.read(Path(run_dir) / "cells", s.name, m)
         one = artifacts.for_seed(arrays, seed, f"{s.name}/{m}")
         if _flew_mpc(s, one):
-            params = _model(program_key(s)).restore(one)
-            flights[m] = np.asarray(jax.jit(_mpc(program_key(s))[0].flight)(params, noise)[0])
+            params = st.model.restore(one)
+            flights[m] = np.asarray(jax.jit(st.mpc.flight)(params, noise)[0])
         else:
             flights[m] = fly(plant.task, one["K"], noise, s.delay_mode)
     return flights
