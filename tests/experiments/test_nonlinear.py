@@ -56,15 +56,16 @@ def test_dagger_swings_the_pendulum_up_with_features_and_the_linear_model_cannot
     """examples/pendulum_swingup.toml at 16 seeds, 8 iterations: DAgger's last policy with the
     degree-3 feature model and iLQR swings the pendulum up from hanging and holds it upright
     (|θ| < 0.1) for the final quarter of the episode within 1.5x the true-model iLQR's cost
-    (295.4) on most seeds: measured 10 of 16 (Gym costs 295.4-313.1 on those; the other six
-    966-1373, stopped in a local minimum below the top). The test asks for a majority, 9.
+    (295.4) on most seeds: measured 12 of 16 within 1.5x (Gym costs 296.7-322.6 on those; the
+    other four 989-1332, stopped below the top). The test asks for a majority, 9.
 
     Why 16 seeds: which seeds swing up is decided at rounding level. Three computations of the
-    model's Jacobian that agree to ~1e-15 give 13 of 16 (``jax.jacfwd`` through the features),
-    10 of 16 (the analytic derivative, ``FeatureMap.jacobian``, what runs) and 9 of 16
-    (``jax.jacrev``), each with other seeds failing: a plan seeded by MPC episodes that try ±2
-    N·m picks between swing-ups of nearly equal cost, and the loop carries a different pick on.
-    Seeds 0-2 alone gave 3, 1 and 2 of 3.
+    model's Jacobian that agree to ~2e-16 give 12 of 16 (the analytic derivative,
+    ``FeatureMap.jacobian``, what runs), 14 of 16 (``jax.jacfwd`` through the features) and 13
+    of 16 (``jax.jacrev`` through the features), each with other seeds failing
+    (``benchmarks/swingup_seeds.py``). Seeds 4 and 15 fail under all three: their learned model
+    rates the true swing-up worse than its own plan, so the loss is the model's, not the
+    planner's.
 
     The linear model with LQR, the same data and ν, swings up on none of 3 seeds (measured:
     every seed's final policy stays near the bottom, costs above 1,000). Batch (ν's data only) is
