@@ -71,3 +71,14 @@ def test_the_shipped_families_are_subclasses_with_their_capabilities():
     assert offered["mdp"] == {"load", "evaluate", "trajectories", "memory"}
     assert offered["gym"] == {"load", "evaluate", "trajectories", "animate"}
     assert all(type(f) is not FunctionFamily for f in FAMILIES.values())
+
+
+def test_the_record_form_builds_its_family_once(monkeypatch):
+    calls = []
+    init = FunctionFamily.__init__
+    monkeypatch.setattr(
+        FunctionFamily, "__init__", lambda self, **kw: calls.append(1) or init(self, **kw)
+    )
+    with pytest.warns(DeprecationWarning):
+        Family(**parts())
+    assert calls == [1]

@@ -87,7 +87,7 @@ class Family(ABC):
                 DeprecationWarning,
                 stacklevel=2,
             )
-            return FunctionFamily(*args, **parts)
+            cls = FunctionFamily  # Python then calls its __init__ with these keywords, once
         return super().__new__(cls)
 
     @abstractmethod
