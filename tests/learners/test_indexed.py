@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 from sklearn.linear_model import Ridge
 
-from loopid.learners import ftrl_least_squares, indexed, ogd
+from loopid.learners import ftrl_least_squares, indexed, ogd, touched_weights
 
 
 def _batches(rng, T, n_batches=12, b=40, f=5, t=3):
@@ -87,3 +87,45 @@ def test_indexed_under_scan_and_vmap(rng):
         for k in range(N):
             state = learner.update(state, X[s, k], Y[s, k], index=idx[s, k])
         np.testing.assert_allclose(W[s], np.asarray(learner.weights(state)), atol=1e-12)
+
+
+@pytest.mark.parametrize("base", [ftrl_least_squares(0.3), ogd(0.1, radius=3.0)], ids=str)
+def test_touched_weights_equal_the_full_solve_bit_for_bit(rng, base):
+    """Re-solving only the steps a batch reached (repeated steps, dropped rows, a step never
+    reached) gives every step's weights exactly as solving all steps does, batch after batch,
+    jitted and vmapped over seeds as the loop runs it."""
+    T = 7
+    learner = indexed(base, T)
+    batches = _batches(rng, T)
+
+    @jax.jit
+    @jax.vmap
+    def update(state, W, X, Y, keep, idx):
+        new = learner.update(state, X, Y, keep, index=idx)
+        return new, touched_weights(base, new, W, idx, keep)
+
+    S = 3
+    state = jax.tree_util.tree_map(lambda a: jnp.stack([a] * S), learner.init(5, 3))
+    W = jax.vmap(learner.weights)(state)
+    for X, Y, keep, idx in batches:
+        seeds = [rng.permutation(len(keep)) for _ in range(S)]  # each seed its own rows
+        state, W = update(
+            state, W, *(jnp.asarray(np.stack([a[p] for p in seeds])) for a in (X, Y, keep, idx))
+        )
+        np.testing.assert_array_equal(np.asarray(W), np.asarray(jax.vmap(learner.weights)(state)))
+    assert np.all(np.asarray(W)[:, T - 1] == 0.0)  # step T-1 never got a row
+
+
+def test_touched_weights_leave_every_other_step_alone():
+    """A stale step that no row reached keeps the W it was given (what makes the solve cheap),
+    and a dropped row's step is not solved."""
+    base = ftrl_least_squares(1e-3)
+    learner = indexed(base, 4)
+    state = learner.update(
+        learner.init(2, 1), np.ones((2, 2)), np.ones((2, 1)), np.array([True, False]),
+        index=np.array([1, 2]),
+    )  # fmt: skip
+    stale = jnp.full((4, 2, 1), 7.0)
+    W = np.asarray(touched_weights(base, state, stale, jnp.array([1, 2]), jnp.array([True, False])))
+    np.testing.assert_array_equal(W[1], np.asarray(learner.weights(state))[1])
+    assert np.all(W[[0, 2, 3]] == 7.0)

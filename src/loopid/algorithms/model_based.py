@@ -22,7 +22,7 @@ from loopid.algorithms.loop import Agent, SolverInfo
 from loopid.algorithms.plant import Transitions
 from loopid.control.lqr import _dlqr_affine
 from loopid.control.tvlqr import tvlqr
-from loopid.learners import Learner, indexed
+from loopid.learners import Learner, indexed, touched_weights
 from loopid.models.linear_offset import (
     LinearOffsetModel,
     features,
@@ -72,8 +72,8 @@ def batched_gains(A, B, Q, R, horizon: int) -> tuple[jax.Array, SolverInfo]:
 
 class LinearAgentState(NamedTuple):
     """The learner's state and the model it implies, ``W = learner.weights(learner)``, solved once
-    per update (a time-varying model has one ridge solve per step: the loss and the policy
-    share it)."""
+    per update (a time-varying model: one ridge solve per step the update's rows reached,
+    :func:`loopid.learners.touched_weights`; the loss and the policy share it)."""
 
     learner: Any
     W: jax.Array
@@ -111,8 +111,9 @@ def linear_agent(
 
     def update(state: LinearAgentState, batch: Transitions) -> LinearAgentState:
         z, y, t = data(batch)
-        if tv:
-            return fitted(fitter.update(state.learner, z, y, batch.mask, index=t))
+        if tv:  # only the steps this batch reached change: solve those again, keep the rest
+            new = fitter.update(state.learner, z, y, batch.mask, index=t)
+            return LinearAgentState(new, touched_weights(learner, new, state.W, t, batch.mask))
         return fitted(fitter.update(state.learner, z, y, batch.mask))
 
     def loss(state: LinearAgentState, batch: Transitions):

@@ -13,6 +13,11 @@ rows whose index equals t (and whose mask is on), all steps at once with fixed s
 ``weights`` returns [T, f, t]. A base learner with an ``update_indexed`` fast path (FTRL:
 scatter-add, O(b f²)) uses it; otherwise ``update`` is vmapped over the T steps with the rows of
 other steps masked out (O(T b f t) for OGD).
+
+A step with no rows keeps its state, so its weights do not change either:
+:func:`touched_weights` re-solves only the steps a batch reached (b solves instead of T; the
+funnel's 500 rows over 599 steps: 183 ms against 214 ms for 20 seeds), each exactly as
+``weights`` would.
 """
 
 from __future__ import annotations
@@ -23,7 +28,7 @@ import numpy as np
 
 from loopid.learners.base import Learner, check_batch, check_index
 
-__all__ = ["indexed"]
+__all__ = ["indexed", "touched_weights"]
 
 
 def indexed(learner: Learner, T: int) -> Learner:
@@ -74,3 +79,18 @@ def indexed(learner: Learner, T: int) -> Learner:
         return jax.vmap(base.weights)(state)
 
     return Learner(init=init, update=update, weights=weights, name=f"indexed({base.name}, T={T})")
+
+
+def touched_weights(learner: Learner, states, W: jax.Array, index, keep) -> jax.Array:
+    """The weights ``[T, f, t]`` of ``states`` (an :func:`indexed` state stacked over T steps),
+    given ``W``, the weights before the update that made ``states``, and that update's rows:
+    ``index`` [b] their steps and ``keep`` [b] whether each counted. Only the steps of kept rows
+    are solved again, with ``learner`` (the per-step learner ``indexed`` was built on); every
+    other step keeps its row of ``W``. Equal bit for bit to ``indexed(learner, T).weights(states)``
+    when ``W`` is the weights of the states before the update: each step's solve is the same
+    computation on the same state. Fixed shapes: b solves whether or not steps repeat."""
+    T = W.shape[0]
+    index = jnp.where(keep, index, T)  # a dropped row touches no step
+    at = jnp.minimum(index, T - 1)
+    fresh = jax.vmap(learner.weights)(jax.tree_util.tree_map(lambda a: a[at], states))
+    return W.at[index].set(fresh, mode="drop")
