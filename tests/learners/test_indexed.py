@@ -89,7 +89,9 @@ def test_indexed_under_scan_and_vmap(rng):
         np.testing.assert_allclose(W[s], np.asarray(learner.weights(state)), atol=1e-12)
 
 
-@pytest.mark.parametrize("base", [ftrl_least_squares(0.3), ogd(0.1, radius=3.0)], ids=str)
+@pytest.mark.parametrize(
+    "base", [ftrl_least_squares(0.3), ogd(0.1, radius=3.0)], ids=["ftrl", "ogd"]
+)
 def test_touched_weights_equal_the_full_solve_bit_for_bit(rng, base):
     """Re-solving only the steps a batch reached (repeated steps, dropped rows, a step never
     reached) gives every step's weights exactly as solving all steps does, batch after batch,
