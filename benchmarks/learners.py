@@ -7,7 +7,9 @@ Extra rows: OGD update, and the funnel's time-varying FTRL (T = 599 steps, 500 r
 scatter-add fast path against the generic vmap-over-steps path; then the funnel at protocol scale
 (20 seeds vmapped, 500 rows each, T = 599): the update alone, the same update with the state
 donated (in place: what is left once the input state need not be copied), and the 20 x 599
-ridge solves alone, so the two halves of the funnel's learner cost can be tracked separately.
+ridge solves alone, so the two halves of the funnel's learner cost can be tracked separately;
+last, the solves the loop runs, only the steps that the 500 rows reached
+(``touched_weights``), against the 20 x 599.
 
 Run: .venv/bin/python benchmarks/learners.py
 """
@@ -21,7 +23,7 @@ import jax.numpy as jnp
 import numpy as np
 
 import loopid  # noqa: F401  (float64)
-from loopid.learners import ftrl_least_squares, indexed, ogd
+from loopid.learners import ftrl_least_squares, indexed, ogd, touched_weights
 
 F, TGT, B, SEEDS, N_AGG, LAM = 25, 21, 100, 20, 10_000, 1e-3
 
@@ -106,9 +108,18 @@ def main():
     args = (Xs, Ys, ms, ids)
     owned = upd_donated(jax.tree_util.tree_map(jnp.copy, s20), *args)
     jax.block_until_ready((upd(s20, *args), solve(s20), owned))
-    times = {"update": [], "donated": [], "solve": []}
+    base = ftrl_least_squares(LAM)
+    touched = jax.jit(jax.vmap(lambda s, W, i, m: touched_weights(base, s, W, i, m)))
+    W20 = solve(s20)
+    assert np.array_equal(np.asarray(touched(s20, W20, ids, ms)), np.asarray(W20))
+    times = {"update": [], "donated": [], "solve": [], "touched": []}
+    rounds = (
+        ("update", lambda: upd(s20, *args)),
+        ("solve", lambda: solve(s20)),
+        ("touched", lambda: touched(s20, W20, ids, ms)),
+    )
     for _ in range(10):
-        for key, fn in (("update", lambda: upd(s20, *args)), ("solve", lambda: solve(s20))):
+        for key, fn in rounds:
             t0 = time.perf_counter()
             jax.block_until_ready(fn())
             times[key].append(time.perf_counter() - t0)
@@ -118,6 +129,8 @@ def main():
     t_up, t_don, t_sol = (float(np.median(times[k])) for k in ("update", "donated", "solve"))
     rows.append(("funnel update, 20 seeds x 500 rows", t_up, "same, state donated", t_don))
     rows.append(("funnel solve, 20 x 599 ridge systems", t_sol, "funnel update (above)", t_up))
+    t_tch = float(np.median(times["touched"]))
+    rows.append(("funnel solve, the 20 x 500 rows' steps", t_tch, "all 20 x 599 (above)", t_sol))
 
     print(f"device: {jax.devices()[0].device_kind}; max |W_jax - W_numpy| = {err:.1e}")
     print(f"{'case':42s} {'time':>10s}  {'reference':28s} {'ref time':>10s} {'ratio':>8s}")
