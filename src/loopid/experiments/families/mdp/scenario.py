@@ -13,7 +13,14 @@ import jax
 import numpy as np
 
 from loopid.algorithms import methods as M
-from loopid.algorithms.loop import Row, Trace, at_least, make_loop_program, run_learning
+from loopid.algorithms.loop import (
+    LoopProgram,
+    Row,
+    Trace,
+    at_least,
+    make_loop_program,
+    run_learning,
+)
 from loopid.algorithms.mdp_agent import (
     classifier_model,
     counts_model,
@@ -159,7 +166,7 @@ class MDPSetup(NamedTuple):
     plant: object
     agent: object
     nu: Callable
-    program: tuple
+    program: LoopProgram
 
 
 @lru_cache(maxsize=8)
