@@ -34,9 +34,8 @@ def tree_allclose(a, b, *, rtol=1e-10, atol=1e-12) -> bool:
 #: run (``make test``: pytest-xdist, a whole file per worker, in collection order) starts them at
 #: once instead of ending on one of them while the other workers idle.
 SLOWEST_FILES = (
-    "test_cli.py",  # reproduce --quick and study --quick
+    "test_cli.py",  # reproduce --quick, study --quick and reproduce --quick --readings literal
     "test_cli_executors.py",  # a killed run, worker processes, Ray
-    "test_readings.py",  # reproduce --quick --readings literal against the pinned table
     "test_chunks.py",
     "test_nonlinear.py",
     "test_family_gym.py",

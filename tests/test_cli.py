@@ -7,6 +7,7 @@ import re
 from pathlib import Path
 
 import numpy as np
+import pyarrow.compute as pc
 import pyarrow.parquet as pq
 import pytest
 
@@ -16,6 +17,8 @@ from loopid.algorithms.methods import METHODS
 from loopid.cli import main
 from loopid.experiments.results import SCHEMA
 from loopid.experiments.scenarios import SCENARIOS
+
+PINNED = Path(__file__).parent / "fixtures" / "reproduce_quick_literal.parquet"
 
 
 def test_version(tmp_path):
@@ -122,9 +125,14 @@ def test_bad_input_from_the_console_script(tmp_path):
 
 @pytest.fixture(scope="session")
 def quick(tmp_path_factory, cache) -> Path:
-    """``loopid reproduce --quick`` into a fresh directory (fills the shared cache)."""
+    """``loopid reproduce --quick`` into a fresh directory (fills the shared cache).
+
+    The end-to-end runs of this file use one worker process: they are compile-bound, and on
+    two cores two workers compile most programs twice for no gain in wall time (``reproduce
+    --quick`` cold, measured: 76 s and 108 CPU-s with one worker, 85 s and 149 CPU-s with
+    two). Worker processes have their own tests (``test_cli_executors.py``)."""
     out = tmp_path_factory.mktemp("quick") / "run"
-    r = cli("reproduce", "--quick", "--out", out, cache=cache)
+    r = cli("reproduce", "--quick", "--workers", "1", "--out", out, cache=cache)
     assert r.returncode == 0, r.stderr
     return out
 
@@ -178,7 +186,10 @@ def test_study_quick_writes_every_file_and_covers_every_reading(tmp_path, cache,
 
     before = cell_mtimes(quick)
     out = tmp_path / "study"
-    r = cli("study", "--quick", "--quiet", "--out", out, "--reproduce", quick, cache=cache)
+    r = cli(
+        "study", "--quick", "--quiet", "--workers", "1", "--out", out, "--reproduce", quick,
+        cache=cache,
+    )  # fmt: skip
     assert r.returncode == 0, r.stderr
     assert cell_mtimes(quick) == before  # the reproduce run's cells were reused, not redone
     names = {p.name for p in out.iterdir()}
@@ -212,6 +223,40 @@ def test_study_quick_writes_every_file_and_covers_every_reading(tmp_path, cache,
     assert not re.search(r"\bnan\b", text, re.IGNORECASE)
     for f in FIGURES:
         assert (out / f"study_{f}.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+
+
+@pytest.mark.slow
+def test_reproduce_quick_literal_equals_the_table_before_the_defaults_changed(tmp_path, cache):
+    """``reproduce --quick --readings literal`` gives ``tests/fixtures/
+    reproduce_quick_literal.parquet``, the table computed before the default readings changed,
+    when the literal readings were the defaults: bit for bit, except the hover panels' policy
+    gradient (to 1e-12: its rollouts' sums now run in another order). After the study in this
+    file, whose one-factor readings compiled most of its programs."""
+    out = tmp_path / "literal"
+    r = cli(
+        "reproduce", "--quick", "--readings", "literal", "--quiet", "--workers", "1",
+        "--out", out, cache=cache,
+    )  # fmt: skip
+    assert r.returncode == 0, r.stderr
+    ours = pq.read_table(out / "results.parquet")
+    pinned = pq.read_table(PINNED)
+    assert ours.num_rows == pinned.num_rows == 216
+    # every learning method, the expert and the funnel's policy gradient bit for bit; the hover
+    # panels' policy gradient to 1e-12 (its rollouts now run as one column batch, whose sums
+    # differ from the pinned batched products in the last bits), with the same divergences
+    hover_pg = pc.and_(
+        pc.equal(ours["method"], "pg"), pc.invert(pc.equal(ours["scenario"], "funnel"))
+    )
+    assert ours.filter(pc.invert(hover_pg)).equals(pinned.filter(pc.invert(hover_pg)))
+    a, b = ours.filter(hover_pg), pinned.filter(hover_pg)
+    assert a.num_rows == 2 * 2 * 4  # 2 scenarios x 2 seeds x 4 iterations
+    for column in ("test_cost", "test_cost_median"):
+        np.testing.assert_allclose(a[column].to_numpy(), b[column].to_numpy(), rtol=1e-12)
+    assert a.drop_columns(["test_cost", "test_cost_median"]).equals(
+        b.drop_columns(["test_cost", "test_cost_median"])
+    )
+    report = (out / "report.md").read_text()
+    assert "Readings: literal (delay_mode = fifo" in report
 
 
 def pa_is_float(t) -> bool:
