@@ -579,24 +579,32 @@ MIN_SEEDS = 3
 
 
 def at_least(run: Callable[[np.ndarray], Any], seeds):
-    """``run(seeds)`` on at least :data:`MIN_SEEDS` seeds (padded with copies of the last), its
-    :class:`Trace` (or each of a dict of them) cut back to ``seeds``."""
+    """``run(seeds)`` on at least :data:`MIN_SEEDS` seeds (:func:`pad_seeds`), its
+    :class:`Trace` (or each of a dict of them) cut back to ``seeds`` (:func:`cut_seeds`)."""
+    seeds = np.asarray(seeds)
+    return cut_seeds(run(pad_seeds(seeds)), seeds)
+
+
+def pad_seeds(seeds) -> np.ndarray:
+    """``seeds`` (1-D) padded with copies of the last to at least :data:`MIN_SEEDS`."""
     seeds = np.asarray(seeds)
     if seeds.ndim != 1 or seeds.size == 0 or seeds.size >= MIN_SEEDS:
-        return run(seeds)
-    padded = np.concatenate([seeds, np.full(MIN_SEEDS - seeds.size, seeds[-1], seeds.dtype)])
-    out = run(padded)
+        return seeds
+    return np.concatenate([seeds, np.full(MIN_SEEDS - seeds.size, seeds[-1], seeds.dtype)])
+
+
+def cut_seeds(out, seeds):
+    """A :class:`Trace` of :func:`pad_seeds` ``(seeds)`` (or each of a dict of them) cut back to
+    its first ``len(seeds)`` seeds (unchanged when nothing was padded)."""
+    seeds = np.asarray(seeds)
     if isinstance(out, dict):
-        return {k: _cut(trace, seeds) for k, trace in out.items()}
-    return _cut(out, seeds)
-
-
-def _cut(trace: Trace, seeds: np.ndarray) -> Trace:
-    """``trace`` of padded seeds cut back to its first ``len(seeds)``."""
+        return {k: cut_seeds(trace, seeds) for k, trace in out.items()}
+    if out.seeds.size == seeds.size:
+        return out
     n = seeds.size
-    cut = jax.tree_util.tree_map(lambda a: a[:n], trace.rows)
-    final = None if trace.final is None else {k: v[:n] for k, v in trace.final.items()}
-    return trace._replace(seeds=seeds, rows=cut, final=final)
+    rows = jax.tree_util.tree_map(lambda a: a[:n], out.rows)
+    final = None if out.final is None else {k: v[:n] for k, v in out.final.items()}
+    return out._replace(seeds=seeds, rows=rows, final=final)
 
 
 def _trace(seeds, samples: int, rows: list[Row], final: dict | None = None) -> Trace:
@@ -619,8 +627,8 @@ __getattr__ = renamed(
 
 __all__ = [  # the contracts and key streams, importable from here as before
     "EVALUATE", "TEST_POLICIES", "Agent", "Diagnostics", "EvalNoise", "IterationKeys",
-    "LoopProgram", "Row", "SolverInfo", "Trace", "at_least", "drive", "eval_noise",
+    "LoopProgram", "Row", "SolverInfo", "Trace", "at_least", "cut_seeds", "drive", "eval_noise",
     "iteration_key", "iteration_keys", "lane_noise", "learning_step", "make_loop_program",
-    "noise_program", "program_memory", "run_fixed_policy", "run_lanes", "run_learning",
-    "seed_keys", "trajectory_mean",
+    "noise_program", "pad_seeds", "program_memory", "run_fixed_policy", "run_lanes",
+    "run_learning", "seed_keys", "trajectory_mean",
 ]  # fmt: skip

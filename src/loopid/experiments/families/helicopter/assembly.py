@@ -1,14 +1,15 @@
 """What a helicopter scenario's methods share, built once (:func:`setup`): the plant, the
 expert's gains, the initial model, the model class, the agent, the ν samplers, the compiled loop
-program and, under MPC, the plant flown by MPC with its settings; and a seed chunk's test noise.
+program, under MPC the plant flown by MPC with its settings, and its seed chunks' test noise.
 
-Both are kept in a bounded cache keyed on :func:`program_key` (the scenario itself with the
+A Setup is kept in a bounded cache keyed on :func:`program_key` (the scenario itself with the
 fields that cannot change a compiled program, its name and seed count, set to fixed values), so
 every method of a run shares one compilation and renamed copies of a panel (the readings study)
 share it too.
 """
 
-from functools import lru_cache
+from collections.abc import Callable
+from functools import lru_cache, partial
 from typing import Any, NamedTuple
 
 import jax
@@ -44,6 +45,8 @@ class Setup(NamedTuple):
       mpc: under ``planner_kind = "mpc"``, the plant flown by MPC on the seed's learned model
         (:func:`loopid.algorithms.mpc_plant.mpc_plant`), else None.
       replanner: MPC's settings (:func:`loopid.control.replanner`), else None.
+      test_noise: ``test_noise(seeds)``, the test noise of a seed chunk (a tuple of ints;
+        :class:`loopid.algorithms.loop.EvalNoise`; :func:`_noise`).
     """
 
     plant: Plant
@@ -55,6 +58,7 @@ class Setup(NamedTuple):
     program: LoopProgram
     mpc: Any
     replanner: Any
+    test_noise: Callable[[tuple[int, ...]], Any]
 
 
 def program_key(s: Scenario) -> Scenario:
@@ -70,6 +74,7 @@ def setup(s: Scenario) -> Setup:
 
 @lru_cache(maxsize=8)
 def _setup(key: Scenario) -> Setup:
+    alternatives = _alternatives(key)
     task = make_task(key.task, noise_std=key.noise_std, delay=key.delay, pads=key.pads)
     plant = core.helicopter_plant(
         task, stop_norm=key.stop_norm, nu_pending=key.nu_pending, cost_cap=key.cost_cap,
@@ -77,9 +82,17 @@ def _setup(key: Scenario) -> Setup:
     )  # fmt: skip
     K_expert = expert_gains(task)
     nominal = core.helicopter_nominal_model(plant, key.funnel_nominal)
-    paper, mpc = model_planner.is_paper_agent(key), key.planner_kind == "mpc"
-    model = model_planner.model_class(key, nominal) if not paper or mpc else None
-    agent = _agent(key, plant, nominal, model)
+    # the agent: the paper's by default; a ``model_*`` model class (one global model for every
+    # step; the funnel's time-varying nominal is kept) is planned by iLQR on the task's
+    # quadratic cost from the task's start, over the task horizon (under ``mpc`` too: its gains
+    # are what the cell saves; MPC flies)
+    paper = model_planner.is_paper_agent(key)
+    model = None if paper else model_planner.model_class(key, nominal)
+    agent = model_planner.make_agent(
+        key, nominal, task.Q, task.R, plant.horizon,
+        start=helicopter.to_error(jnp.asarray(task.x0), jnp.asarray(task.target)[0]),
+        U0=np.zeros((plant.horizon, helicopter.N_ACTION)), alternatives=alternatives, model=model,
+    )  # fmt: skip
     nus = [
         make_nu(
             kind, plant, K_expert, state_var=key.nu_state_var, action_var=key.nu_action_var,
@@ -88,10 +101,17 @@ def _setup(key: Scenario) -> Setup:
         for kind in NU_KINDS
     ]  # fmt: skip
     flown, controller, replan = None, None, None
-    if mpc:  # MPC flies the seed's learned model (its parameters, the loop's controller)
+    if key.planner_kind == "mpc":  # MPC flies the seed's learned model (its parameters)
         from loopid.algorithms.mpc_plant import mpc_plant
+        from loopid.control import quadratic_cost, replanner
 
-        replan = _replanner(key, plant, model)
+        # ``planner_horizon``-step plans on the model's dynamics (default the task horizon),
+        # re-planned every ``planner_every`` steps, first from Δu = 0, the trim
+        replan = replanner(
+            model.dynamics, quadratic_cost(task.Q, task.R), np.zeros(helicopter.N_ACTION),
+            horizon=key.planner_horizon or plant.horizon, every=key.planner_every,
+            iterations=key.planner_iterations, alternatives=alternatives,
+        )  # fmt: skip
         flown = mpc_plant(plant, replan)
         controller = lambda state, K: model.params(state)  # noqa: E731
     program = make_loop_program(
@@ -99,25 +119,8 @@ def _setup(key: Scenario) -> Setup:
         iterations=key.iterations, n_test=key.test_trajectories, mode=key.sampling,
         gamma=key.gamma, test_policy=key.test_policy, controller=controller,
     )  # fmt: skip
-    return Setup(plant, K_expert, nominal, model, agent, nus, program, flown, replan)
-
-
-def _agent(key: Scenario, plant: Plant, nominal: LinearOffsetModel, model) -> Agent:
-    """The scenario's agent (:func:`loopid.experiments.model_planner.make_agent`): the paper's
-    by default; a ``model_*`` model class (one global model for every step; the funnel's
-    time-varying nominal is kept) is planned by iLQR on the task's quadratic cost from the task's
-    start, over the task horizon (under ``mpc`` too: its gains are what the cell saves; MPC
-    flies)."""
-    task, horizon = plant.task, plant.horizon
-    target = jnp.asarray(task.target)
-    paper = model_planner.is_paper_agent(key)
-    return model_planner.make_agent(
-        key, nominal, task.Q, task.R, horizon,
-        start=helicopter.to_error(jnp.asarray(task.x0), target[0]),
-        U0=np.zeros((horizon, helicopter.N_ACTION)),
-        alternatives=None if paper else _alternatives(key),
-        model=None if paper else model,
-    )  # fmt: skip
+    noise = partial(_noise, key)
+    return Setup(plant, K_expert, nominal, model, agent, nus, program, flown, replan, noise)
 
 
 def _alternatives(key: Scenario):
@@ -132,20 +135,6 @@ def _alternatives(key: Scenario):
             f"got {alternatives!r}"
         )
     return A
-
-
-def _replanner(key: Scenario, plant: Plant, model):
-    """MPC's settings (:func:`loopid.control.replanner`): ``planner_horizon``-step plans on the
-    model's dynamics (default the task horizon), re-planned every ``planner_every`` steps with
-    ``planner_iterations`` iLQR iterations, first from Δu = 0, the trim."""
-    from loopid.control import quadratic_cost, replanner
-
-    task = plant.task
-    return replanner(
-        model.dynamics, quadratic_cost(task.Q, task.R), np.zeros(helicopter.N_ACTION),
-        horizon=key.planner_horizon or plant.horizon, every=key.planner_every,
-        iterations=key.planner_iterations, alternatives=_alternatives(key),
-    )  # fmt: skip
 
 
 def agent(s: Scenario) -> Agent:

@@ -6,14 +6,15 @@ import numpy as np
 from loopid.algorithms import methods as M
 from loopid.algorithms.loop import (
     Trace,
-    at_least,
+    cut_seeds,
+    pad_seeds,
     program_memory,
     run_fixed_policy,
 )
 from loopid.algorithms.loop import run_lanes as run_learning_lanes
 from loopid.algorithms.policy_gradient import run_policy_gradient
 from loopid.experiments.families.base import Progress
-from loopid.experiments.families.helicopter.assembly import _noise, program_key, setup
+from loopid.experiments.families.helicopter.assembly import setup
 from loopid.experiments.scenarios import Scenario
 from loopid.exploration import NU_KINDS
 from loopid.systems.tasks import is_hover
@@ -24,32 +25,31 @@ def run(method: str, s: Scenario, seeds=None, progress: Progress | None = None) 
 
     ``seeds``: integer seeds (default ``range(s.seeds)``). Returns a
     :class:`~loopid.algorithms.loop.Trace` with one row per seed and iteration;
-    ``progress(n, row)`` is called after every iteration.
+    ``progress(n, row)`` is called after every iteration. A learning method runs as a lane set
+    of one (:func:`run_lanes`).
     """
     M.check_method(method)
+    if method not in NOT_LANES:
+        return run_lanes((method,), s, seeds, progress)[method]
     seeds = np.arange(s.seeds) if seeds is None else np.asarray(seeds)
-    return at_least(lambda padded: _run(method, s, padded, progress), seeds)
-
-
-def _run(method: str, s: Scenario, seeds: np.ndarray, progress: Progress | None) -> Trace:
-    key = program_key(s)
+    padded = pad_seeds(seeds)
     st = setup(s)
-    noise = _noise(key, tuple(int(seed) for seed in seeds))
+    noise = st.test_noise(tuple(int(seed) for seed in padded))
     if method == "expert":
-        return run_fixed_policy(
-            st.plant, st.K_expert, seeds, iterations=s.iterations, samples=s.samples,
+        trace = run_fixed_policy(
+            st.plant, st.K_expert, padded, iterations=s.iterations, samples=s.samples,
             n_test=s.test_trajectories, progress=progress, noise=noise.test,
         )  # fmt: skip
-    if method == "pg":
+    else:
         # hover: the trim-holding base flies π_1's test trajectories (π_1 never acts from μ);
         # the funnel's π_1 acts, so its gains are the base there (policy_gradient docstring)
-        return run_policy_gradient(
-            st.plant, st.agent, seeds, iterations=s.iterations, samples=s.samples,
+        trace = run_policy_gradient(
+            st.plant, st.agent, padded, iterations=s.iterations, samples=s.samples,
             n_test=s.test_trajectories, horizon=s.pg_horizon, sigma=s.pg_sigma, step=s.pg_step,
             hold=is_hover(s.task), nu_state_var=s.nu_state_var, cost_cap=s.cost_cap,
             samples_mode=s.pg_samples, update=s.pg_update, progress=progress, noise=noise.test,
         )  # fmt: skip
-    return run_lanes((method,), s, seeds, progress, padded=True)[method]
+    return cut_seeds(trace, seeds)
 
 
 #: The methods that are not learning lanes: the fixed expert and the policy-gradient baseline.
@@ -63,33 +63,29 @@ def lane_sets(s: Scenario, methods) -> list[tuple[str, ...]]:
     return ([learning] if learning else []) + [(m,) for m in methods if m in NOT_LANES]
 
 
-def run_lanes(
-    methods, s: Scenario, seeds=None, progress: Progress | None = None, *, padded: bool = False
-) -> dict[str, Trace]:
+def run_lanes(methods, s: Scenario, seeds=None, progress: Progress | None = None) -> dict:
     """Learning methods of scenario ``s`` as one lane set
     (:func:`loopid.algorithms.loop.run_lanes`: every (method, seed) pair a lane of one
     compiled program, the ν draws and test noise shared): ``{method: Trace}``, each the same
-    numbers as :func:`run` of that method. ``progress(n, row)``: the row's leaves ``[M·S]``.
-    ``padded``: the seeds are already at least :data:`~loopid.algorithms.loop.MIN_SEEDS`."""
+    numbers as :func:`run` of that method. ``progress(n, row)``: the row's leaves ``[M·S]``."""
     for m in methods:
         M.check_method(m)
         if m in NOT_LANES:
             raise ValueError(f"{m} is not a learning method; run it alone")
     seeds = np.arange(s.seeds) if seeds is None else np.asarray(seeds)
-    if not padded:
-        return at_least(lambda pad: run_lanes(methods, s, pad, progress, padded=True), seeds)
+    padded = pad_seeds(seeds)
     st = setup(s)
+    noise = st.test_noise(tuple(int(seed) for seed in padded))
     schedules = [
         M.policy_fractions(m, s.iterations, dagger_fraction=s.dagger_fraction) for m in methods
     ]
     traces = run_learning_lanes(
-        st.plant, st.agent, st.nus, schedules, seeds, samples=s.samples,
+        st.plant, st.agent, st.nus, schedules, padded, samples=s.samples,
         n_test=s.test_trajectories, mode=s.sampling, gamma=s.gamma, test_policy=s.test_policy,
         progress=progress, program=st.program,
-        which=[NU_KINDS.index(M.nu_kind(m)) for m in methods],
-        noise=_noise(program_key(s), tuple(int(seed) for seed in seeds)),
+        which=[NU_KINDS.index(M.nu_kind(m)) for m in methods], noise=noise,
     )  # fmt: skip
-    return dict(zip(methods, traces, strict=True))
+    return cut_seeds(dict(zip(methods, traces, strict=True)), seeds)
 
 
 def memory(s: Scenario, method: str | tuple[str, ...], seeds: int) -> int:
