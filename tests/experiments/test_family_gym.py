@@ -123,6 +123,9 @@ BAD = [
     ({"env": {"colour": "red"}}, "env.colour"),
     ({"run": {"iterations": 0}}, "iterations"),
     ({"env": {"vectorization": "threads"}}, "vectorization"),
+    ({"run": {"test_policy": "mixture"}}, "test_policy"),
+    ({"run": {"test_policy": "best"}, "model": {"kind": "features"},
+      "planner": {"kind": "mpc"}}, "flies the last policy only"),  # fmt: skip
 ]
 
 

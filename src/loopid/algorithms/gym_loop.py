@@ -26,7 +26,12 @@ Test cost of one episode: ``Σ_t c(o_t, a_t)`` over the actions taken (plus ``te
 it ended by ``terminated``), capped at ``cost_cap``; an episode that reaches the cap or a non-finite
 value counts as diverged. ``c`` is a :class:`~loopid.systems.from_gymnasium.ObservationCost` (on the
 observed entries), ``"reward"`` (the env's own reward, negated: ``c_t = −r_t``) or any callable
-``cost(obs, action) -> float`` on the raw observation. The tested policy is the last one.
+``cost(obs, action) -> float`` on the raw observation. The tested policy is the last one, or
+with ``test_policy = "best"`` the best so far: each seed's π_n is scored by its mean capped cost
+on episodes of its own (slot stream 5, :data:`~loopid.algorithms.keys.HOST_SELECT`, the same at
+every iteration), kept when strictly cheaper than the best before it, and the kept one is tested
+(as :func:`loopid.algorithms.loop.run_learning`'s ``best``: the reported cost is not the
+selection's, so it is not biased by it).
 """
 
 from collections.abc import Callable
@@ -37,7 +42,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from loopid._renamed import renamed, renamed_argument
-from loopid.algorithms.keys import HOST_EVALUATE, HOST_NU, HOST_POLICY, HOST_TEST
+from loopid.algorithms.keys import HOST_EVALUATE, HOST_NU, HOST_POLICY, HOST_SELECT, HOST_TEST
 from loopid.algorithms.loop import (
     Agent,
     Row,
@@ -230,6 +235,7 @@ def run_learning_host(
     program: HostLoopProgram | None = None,
     controller: Callable[[Any, Any], Any] | None = None,
     cell: HostLoopProgram | None = None,
+    test_policy: str = "last",
 ) -> Trace:
     """Run one learning method on a host system for ``len(fractions)`` iterations, every seed.
 
@@ -240,7 +246,15 @@ def run_learning_host(
     ``controller(learner_states, K) -> policy``: what flies the policy's training and test
     episodes, given every seed's learner state (leading seed axis) and gains (a model-predictive
     controller re-plans on the seed's model); default the gains ``K`` themselves.
+    ``test_policy``: ``last`` or ``best`` (module docstring; gains only, not a controller); with
+    ``best`` the Trace's ``final`` also holds ``best_K``, the tested gains.
     """
+    if test_policy not in ("last", "best"):
+        raise ValueError(f"test_policy must be 'last' or 'best' here, got {test_policy!r}")
+    if controller is not None and test_policy != "last":
+        raise ValueError(
+            f"a controller flies the last policy only, got test_policy {test_policy!r}"
+        )
     fractions = np.asarray(fractions, dtype=np.float64)
     N = int(fractions.shape[0]) if fractions.ndim == 1 else 0
     if N < 1:
@@ -263,17 +277,26 @@ def run_learning_host(
             return system.linear_policy(np.asarray(K))
         return controller(carry.learner, K)
 
-    def test(policy) -> tuple:
+    def test(carry, K, best) -> tuple:
+        """The tested policy's (mean, median, diverged) [S] and the best so far ``(K, score)``."""
+        if test_policy == "best":
+            scores = test_episodes(system, np.asarray(K), seeds, n_test, cost, termination_cost,
+                                   cost_cap, stream=HOST_SELECT)[0].mean(1)  # fmt: skip
+            better = scores < best[1]
+            K = np.where(better.reshape(-1, *[1] * (np.ndim(K) - 1)), K, best[0])
+            best = (K, np.where(better, scores, best[1]))
+        policy = flies(carry, K)
         costs, div = test_episodes(system, policy, seeds, n_test, cost, termination_cost, cost_cap)
-        return costs.mean(1), np.median(costs, axis=1), div.sum(1)
+        return (costs.mean(1), np.median(costs, axis=1), div.sum(1)), best
 
     def start():
         carry, K, info = program.start(jnp.zeros(S))
         zero, count = np.zeros(S), np.zeros(S, np.int64)
-        return (carry, K), _row(*test(flies(carry, K)), zero, zero, zero, count, count, info)
+        stats, best = test(carry, K, (np.asarray(K), np.full(S, np.inf)))
+        return (carry, K, best), _row(*stats, zero, zero, zero, count, count, info)
 
     def step(state, n):
-        carry, K = state
+        carry, K, best = state
         policies = [flies(carry, K)]
         slots = [
             Slot(0, s, x, 0.0, True)
@@ -294,10 +317,13 @@ def run_learning_host(
         carry, K, info, stats = program.learn(
             carry, pol, from_nu, keys, jnp.int32(n), jnp.float64(fractions[n - 1])
         )
-        return (carry, K), _row(*test(flies(carry, K)), *(np.asarray(a) for a in stats), info)
+        tested, best = test(carry, K, best)
+        return (carry, K, best), _row(*tested, *(np.asarray(a) for a in stats), info)
 
-    (carry, K), rows = drive(start, step, N, progress)
+    (carry, K, best), rows = drive(start, step, N, progress)
     final = {"K": K}
+    if test_policy == "best":
+        final["best_K"] = best[0]
     if agent.params is not None:
         final |= jax.vmap(agent.params)(carry.learner)
     return _trace(seeds, samples, rows, final)

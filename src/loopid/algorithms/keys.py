@@ -19,7 +19,8 @@ EVALUATE 4     ``loopid evaluate``: fresh test noise the run never saw
 Systems that are not JAX functions (a Gymnasium env, :mod:`loopid.algorithms.host_loop`) seed
 their episodes from NumPy's ``SeedSequence([seed, n, stream])`` instead, with the streams
 :data:`HOST_POLICY`, :data:`HOST_NU`, :data:`HOST_TEST` (n = 0: the same episodes at every
-iteration) and :data:`HOST_EVALUATE`. Their values are what runs have always used, so saved
+iteration), :data:`HOST_EVALUATE` and :data:`HOST_SELECT` (n = 0: the episodes on which
+``test_policy = "best"`` selects). Their values are what runs have always used, so saved
 tables stay reproducible.
 """
 
@@ -30,7 +31,7 @@ import jax.numpy as jnp
 import numpy as np
 
 TRAIN, TEST, SELECT, EVALUATE = 1, 2, 3, 4
-HOST_POLICY, HOST_NU, HOST_TEST, HOST_EVALUATE = 1, 2, 3, 4
+HOST_POLICY, HOST_NU, HOST_TEST, HOST_EVALUATE, HOST_SELECT = 1, 2, 3, 4, 5
 
 
 def seed_keys(seeds) -> jax.Array:

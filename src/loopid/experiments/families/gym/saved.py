@@ -40,7 +40,8 @@ def saved_controller(setup: Setup, arrays: dict):
         else:
             fmap = model_planner.feature_map(setup.scenario, nominal.n, nominal.m)
             model = FeatureModel(nominal, fmap, arrays["W_features"])
-    return model, GainController(arrays["K"], error, np.asarray(setup.shape.a_op))
+    K = arrays.get("best_K", arrays["K"])  # the gains the run tested
+    return model, GainController(K, error, np.asarray(setup.shape.a_op))
 
 
 def load(s: GymScenario, method: str, arrays: dict):
@@ -51,11 +52,12 @@ def load(s: GymScenario, method: str, arrays: dict):
 
 def saved_policy(setup: Setup, arrays: dict):
     """What the seeds' saved arrays ``{name: [S, ...]}`` fly on ``setup``'s env: MPC re-planning
-    on each seed's saved model where the cell flew MPC, else the gains ``K [S, T, m, n]``."""
+    on each seed's saved model where the cell flew MPC, else the gains the run tested
+    (``best_K [S, T, m, n]`` under ``test_policy = "best"``, else ``K``)."""
     from loopid.algorithms.planning_agent import holds_model, restore_seeds
 
     if setup.compiled.mpc is None or not holds_model(arrays):
-        return setup.system.linear_policy(np.asarray(arrays["K"]))
+        return setup.system.linear_policy(np.asarray(arrays.get("best_K", arrays["K"])))
     return setup.compiled.mpc(restore_seeds(setup.compiled.model, arrays))
 
 

@@ -20,7 +20,7 @@ it differs)::
                    cost: "module:function", the planner's cost(Δx, Δu, t) in JAX, default the
                    [cost] table's quadratic; either way the action box is kept by a penalty)
     [run]          methods (dagger | batch | abbeel), iterations, samples, seeds (a count or a
-                   list), test_trajectories, dagger_fraction
+                   list), test_trajectories, dagger_fraction, test_policy ("last" | "best")
 
 A scenario is frozen and hashable (lists kept as tuples, tables as :class:`Table` s) so that
 the compiled agent can be cached on it; :attr:`GymScenario.plain` gives every field back as a
@@ -73,6 +73,9 @@ class GymScenario(model_planner.ModelPlanner):
       A, B, time_varying, ftrl_lambda: the nominal model and the FTRL regulariser.
       model_*, planner_*: the model class and the optimal-control solver
         (:mod:`loopid.experiments.model_planner`; default a linear model and LQR).
+      test_policy: the policy tested at each iteration: ``last`` (the paper's) or ``best``, the
+        best so far, selected on episodes of its own
+        (:func:`loopid.algorithms.gym_loop.run_learning_host`; gains only, not under ``mpc``).
       iterations, samples, seeds, test_trajectories, dagger_fraction: the protocol (``seeds``: a
         count or a tuple of seeds).
     """
@@ -106,6 +109,7 @@ class GymScenario(model_planner.ModelPlanner):
     seeds: Any = 5
     test_trajectories: int = 10
     dagger_fraction: float = 0.5
+    test_policy: str = "last"
     planner_start: Any = None
     planner_cost: str | None = None
 
@@ -179,6 +183,11 @@ def validate(s: GymScenario) -> None:
     else:
         check_int("seeds", seeds)
     check_number("dagger_fraction", s.dagger_fraction, 0.0, 1.0)
+    check_choice("test_policy", s.test_policy, ("last", "best"))
+    if s.planner_kind == "mpc" and s.test_policy != "last":
+        raise ValueError(
+            f"planner_kind 'mpc' flies the last policy only, got test_policy {s.test_policy!r}"
+        )
     check_model(s, s.horizon)
 
 
@@ -218,6 +227,7 @@ TABLES = {
     "run": {
         "methods": None, "iterations": "iterations", "samples": "samples", "seeds": "seeds",
         "test_trajectories": "test_trajectories", "dagger_fraction": "dagger_fraction",
+        "test_policy": "test_policy",
     },
 }  # fmt: skip
 _REQUIRED = {"env": ("id",), "cost": ("target", "Q", "R"), "exploration": ()}

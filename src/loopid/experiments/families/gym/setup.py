@@ -114,6 +114,7 @@ def run(method: str, s: GymScenario, seeds=None, progress: Progress | None = Non
             [int(x) for x in seeds], samples=s.samples, n_test=s.test_trajectories,
             cost=setup.test_cost, termination_cost=s.termination, cost_cap=s.cost_cap,
             progress=progress, program=setup.compiled.program, controller=setup.compiled.controller,
+            test_policy=s.test_policy,
         )  # fmt: skip
 
 
