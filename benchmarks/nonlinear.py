@@ -10,7 +10,8 @@
       cost with the torque penalty (``Penalized(pendulum.cost_obs, 2, 100)``), U0 = 0.2 (from
       there iLQR improves for 226 iterations: none stops early). True model:
       :func:`loopid.systems.pendulum.step_obs`. Learned: Δx' = Δx + Wᵀφ(Δx, Δu), φ polynomial of
-      degree 3 (F = 35, :func:`loopid.models.feature_model.polynomial`), W [35, 4] fitted by
+      degree 3 (F = 35, :func:`loopid.models.feature_model.polynomial`) or 4 (F = 70, the
+      swing-up example's), W [F, 4] fitted by
       FTRL least squares (λ = 1e-3) on 40 random starts × 200 steps of uniform random torques,
       planned through ``feature_model.dynamics`` with W traced (``plan(params=W)``).
     - The nose-in funnel (``make_task("funnel")``, Δx [21] error coordinates along the target,
@@ -114,10 +115,10 @@ def pendulum_data(starts=40, steps=200, seed=0):
     return dx.reshape(-1, 4), U.reshape(-1, 1), dx_next.reshape(-1, 4)
 
 
-def pendulum_learned():
-    """(dynamics(W, Δx, Δu, t), W) of the degree-3 feature model fitted to random torques."""
+def pendulum_learned(degree: int = 3):
+    """(dynamics(W, Δx, Δu, t), W) of the feature model of ``degree`` fitted to random torques."""
     nominal = LinearOffsetModel(jnp.eye(4), jnp.zeros((4, 1)))
-    fmap = F.polynomial(4, 1, 3)
+    fmap = F.polynomial(4, 1, degree)
     W = fit(nominal, fmap, *pendulum_data())
 
     def learned(W, dx, du, t):
@@ -130,6 +131,7 @@ def plan_rows_pendulum(iterations, repeats):
     x0 = pendulum.to_error(jnp.array([np.pi, 0.0]))
     U0 = jnp.full((200, 1), 0.2)
     learned, W = pendulum_learned()
+    learned4, W4 = pendulum_learned(4)
 
     def planner(model):
         settings = dict(iterations=iterations, tol=0.0, atol=0.0)
@@ -138,6 +140,7 @@ def plan_rows_pendulum(iterations, repeats):
     return [
         ("true model (step_obs)", *timed(planner(true_pendulum), None, repeats=repeats)),
         ("learned: polynomial 3, F = 35", *timed(planner(learned), W, repeats=repeats)),
+        ("learned: polynomial 4, F = 70", *timed(planner(learned4), W4, repeats=repeats)),
     ]
 
 
