@@ -124,8 +124,10 @@ BAD = [
     ({"run": {"iterations": 0}}, "iterations"),
     ({"env": {"vectorization": "threads"}}, "vectorization"),
     ({"run": {"test_policy": "mixture"}}, "test_policy"),
-    ({"run": {"test_policy": "best"}, "model": {"kind": "features"},
-      "planner": {"kind": "mpc"}}, "flies the last policy only"),  # fmt: skip
+    (
+        {"run": {"test_policy": "best"}, "model": {"kind": "features"}, "planner": {"kind": "mpc"}},
+        "flies the last policy only",
+    ),
 ]
 
 

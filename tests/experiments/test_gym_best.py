@@ -1,6 +1,7 @@
-"""The Gymnasium loop's ``test_policy = "best"`` (:func:`loopid.algorithms.gym_loop.run_learning_host`):
-the same training as ``last``, a reported cost that is one of the costs ``last`` reported so far
-(the same test episodes), and saved gains ``best_K`` that fly to the last reported cost."""
+"""The Gymnasium loop's ``test_policy = "best"``
+(:func:`loopid.algorithms.gym_loop.run_learning_host`): the same training as ``last``, a
+reported cost that is one of the costs ``last`` reported so far (the same test episodes), and
+saved gains ``best_K`` that fly to the last reported cost."""
 
 from pathlib import Path
 
