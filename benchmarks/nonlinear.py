@@ -2,7 +2,7 @@
 
 (a) One iLQR plan (:func:`loopid.control.plan`, compiled: ``jax.jit`` of the plan with the
     model's parameters as its argument, the way :func:`loopid.algorithms.planning_agent.ilqr_plan`
-    runs inside the loop; timed after one compiling call). Both rows of a system run the same
+    runs inside the loop; timed after one compiling call). Every row of a system runs the same
     planner, cost, start and initial actions for the same number of iterations (``tol = atol = 0``
     so neither stops early; the iterations run are printed). Median of ``REPEATS`` calls.
 

@@ -4,7 +4,7 @@ examples/pendulum_swingup.toml, DAgger with the degree-4 feature model, 12 itera
 transitions, testing the best policy so far (``test_policy = "best"``): how many seeds' tested
 policy, and how many seeds' last policy, cost at most 1.5x the true-model iLQR's Gym cost
 (295.4, ``REFERENCE``; one test episode from exactly hanging, Pendulum's own cost). The learned
-model's Jacobian along a plan is computed three ways that agree to ~1e-15:
+model's Jacobian along a plan is computed three ways that agree to ~2e-16:
 
 - ``analytic``: the polynomial map's own derivative (``FeatureMap.jacobian``, what runs);
 - ``jacfwd``: forward-mode autodiff through the features (the map without its ``jacobian``);
@@ -17,8 +17,8 @@ planner_kind=lqr``; ``--verbose`` prints the failing seeds' test cost at every i
 model_degree=3 iterations=8 test_policy=last`` is the example as it was before.
 The loop selects the best policy on episodes of its own; from exactly hanging they
 are the test episode itself, so the tested cost is each seed's lowest so far. One
-16-seed run takes 2-3 minutes on 2 shared CPU cores. The measured table is in docs/paper/notes.md
-("The swing-up, seed by seed").
+16-seed run takes 2-4 minutes on 2 shared CPU cores. The measured table is in docs/paper/notes.md
+("The swing-up: a richer model and the best policy so far").
 
     PYTHONPATH=src .venv/bin/python benchmarks/swingup_seeds.py --jacobian jacrev [--seeds 16]
 """

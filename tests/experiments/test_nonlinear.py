@@ -79,9 +79,9 @@ def test_dagger_swings_the_pendulum_up_with_features_and_the_linear_model_cannot
     np.testing.assert_allclose(trace.rows.test_cost[:, -1], costs, rtol=1e-6)
     assert np.all(np.diff(trace.rows.test_cost, axis=1) <= 0)  # one test episode: the running min
 
-    # the saved model of the first seed that swung up, reloaded (loopid.load's path), predicts
-    # the real pendulum along its tested policy's flight: one-step error below 1% of the
-    # nominal's (Δx' = Δx).
+    # the last saved model of the first seed that swung up, reloaded (loopid.load's path, whose
+    # controller flies the tested gains), predicts the real pendulum along the tested policy's
+    # flight: one-step error below 1% of the nominal's (Δx' = Δx).
     i = int(np.argmax(upright))
     shared = {f"shared.{k}": v for k, v in gym.shared(s, "dagger").items()}
     arrays = {"K": trace.final["K"][i], "best_K": trace.final["best_K"][i],

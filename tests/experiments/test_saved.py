@@ -57,6 +57,19 @@ def test_a_reloaded_helicopter_controller_gives_the_recorded_costs_exactly(hover
         assert float(np.mean(costs)) == pytest.approx(recorded, rel=1e-15)
 
 
+def test_a_cell_that_tested_its_best_policy_reloads_those_gains(hover_run):
+    """Under ``test_policy = "best"`` a cell saves ``best_K``, the gains it tested, beside the
+    last ``K``: what the reloaded controller flies."""
+    out, _ = hover_run
+    _, arrays = artifacts.read(out / "cells", "hover", "dagger-t")
+    one = artifacts.for_seed(arrays, 0, "hover/dagger-t")
+    best = {**one, "best_K": one["K"] + 1.0}
+    _, controller = helicopter.load(HOVER, "dagger-t", best)
+    np.testing.assert_array_equal(controller.K, best["best_K"])
+    _, controller = helicopter.load(HOVER, "dagger-t", one)
+    np.testing.assert_array_equal(controller.K, one["K"])
+
+
 def test_the_saved_model_predicts_as_the_learner_did(hover_run):
     out, _ = hover_run
     trace = helicopter.run("dagger-t", HOVER)  # the same seeds again: the in-memory model

@@ -30,8 +30,9 @@ observed entries), ``"reward"`` (the env's own reward, negated: ``c_t = −r_t``
 with ``test_policy = "best"`` the best so far: each seed's π_n is scored by its mean capped cost
 on episodes of its own (slot stream 5, :data:`~loopid.algorithms.keys.HOST_SELECT`, the same at
 every iteration), kept when strictly cheaper than the best before it, and the kept one is tested
-(as :func:`loopid.algorithms.loop.run_learning`'s ``best``: the reported cost is not the
-selection's, so it is not biased by it).
+(as :func:`loopid.algorithms.loop.run_learning`'s ``best``: on random episodes the reported
+cost is not the selection's, so it is not biased by it; from a deterministic start the two are
+the same episode, and the reported cost is each seed's running minimum).
 """
 
 from collections.abc import Callable

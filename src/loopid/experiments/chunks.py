@@ -45,7 +45,7 @@ A cell runs all its seeds as one vmapped program, so its memory grows with the s
   S = 41 seeds on), all by :func:`loopid.algorithms.plant.ordered_sum`. Batches of one or two
   seeds are lowered differently again (measured: a seed's rows then differ in the last bits,
   which a diverging test trajectory amplifies), so every program runs at least
-  :data:`MIN_CHUNK` seeds, padding if it must (:func:`loopid.algorithms.loop.at_least`, so a
+  :data:`MIN_CHUNK` seeds, padding if it must (:func:`loopid.algorithms.loop.pad_seeds`, so a
   direct ``family.run`` of two seeds gives the same numbers as a run directory's cell). Checked
   bit for bit, every Row field and final array: hover DAgger 14 against 40 and 64 seeds
   (100 test trajectories), hover-delay 3 against 50 (also ``delay_mode="latency"``), the funnel

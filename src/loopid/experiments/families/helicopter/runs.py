@@ -63,7 +63,9 @@ def lane_sets(s: Scenario, methods) -> list[tuple[str, ...]]:
     return ([learning] if learning else []) + [(m,) for m in methods if m in NOT_LANES]
 
 
-def run_lanes(methods, s: Scenario, seeds=None, progress: Progress | None = None) -> dict:
+def run_lanes(
+    methods, s: Scenario, seeds=None, progress: Progress | None = None
+) -> dict[str, Trace]:
     """Learning methods of scenario ``s`` as one lane set
     (:func:`loopid.algorithms.loop.run_lanes`: every (method, seed) pair a lane of one
     compiled program, the ν draws and test noise shared): ``{method: Trace}``, each the same

@@ -62,7 +62,8 @@ def load(s: Scenario, method: str, arrays: dict):
         return np.asarray(helicopter.to_error(x, target[min(t, T)]))
 
     delay = st.plant.task.delay if s.delay_mode == "latency" else 0
-    controller = GainController(arrays["K"], error, np.zeros(helicopter.N_ACTION), delay)
+    K = arrays.get("best_K", arrays["K"])  # the gains the run tested
+    controller = GainController(K, error, np.zeros(helicopter.N_ACTION), delay)
     if _flew_mpc(s, arrays):
         params = st.model.restore(arrays)
         zero = np.zeros(helicopter.N_ACTION)
@@ -82,12 +83,13 @@ def load(s: Scenario, method: str, arrays: dict):
 def evaluate(s: Scenario, arrays: dict, seeds, episodes: int, env=None) -> np.ndarray:
     """Capped test costs ``[S, episodes]`` of the saved policies on fresh noise (the stream
     :data:`~loopid.algorithms.keys.EVALUATE`), flown as the run flew them (its delay reading
-    included): the gains ``arrays["K"] [S, T, m, n]``, or under ``planner_kind = "mpc"`` MPC
-    re-planning on each seed's saved model."""
+    included): the gains the run tested (``best_K [S, T, m, n]`` under ``test_policy =
+    "best"``, else ``K``), or under ``planner_kind = "mpc"`` MPC re-planning on each seed's
+    saved model."""
     if env is not None:
         raise ValueError(f"--env {env!r} applies to gym runs, not to {s.name}")
     st = setup(s)
-    plant, policy = st.plant, jax.numpy.asarray(arrays["K"])
+    plant, policy = st.plant, jax.numpy.asarray(arrays.get("best_K", arrays["K"]))
     if _flew_mpc(s, arrays):
         from loopid.algorithms.planning_agent import restore_seeds
 
@@ -125,7 +127,7 @@ def _flights(run_dir, s: Scenario, methods, seed: int) -> dict:
             params = st.model.restore(one)
             flights[m] = np.asarray(jax.jit(st.mpc.flight)(params, noise)[0])
         else:
-            flights[m] = fly(plant.task, one["K"], noise, s.delay_mode)
+            flights[m] = fly(plant.task, one.get("best_K", one["K"]), noise, s.delay_mode)
     return flights
 
 
