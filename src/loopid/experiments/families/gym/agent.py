@@ -117,6 +117,7 @@ def _planning_agent(s: GymScenario, v: dict, shape: EnvShape, cost, nominal) -> 
     cost's Q, R, with the action box kept by :func:`loopid.control.action_penalty`."""
     from loopid.control import MPCController, Penalized, quadratic_cost
 
+    start = _start(v["planner_start"], shape)
     Q, R = cost.augmented()
     if s.planner_cost is None:
         plan_cost = quadratic_cost(Q, R, u_limit=shape.u_limit)
@@ -135,7 +136,7 @@ def _planning_agent(s: GymScenario, v: dict, shape: EnvShape, cost, nominal) -> 
     mc = checked("model", model_planner.model_class, s, nominal)
     U0 = np.full((shape.horizon, shape.m), 0.1 * (shape.u_limit or 1.0))
     agent = model_planner.make_agent(
-        s, nominal, Q, R, shape.horizon, start=_start(v["planner_start"], shape), U0=U0,
+        s, nominal, Q, R, shape.horizon, start=start, U0=U0,
         plan_cost=plan_cost, alternatives=alternatives, model=mc,
     )  # fmt: skip
     program = make_host_program(agent, samples=s.samples)

@@ -59,28 +59,6 @@ class Setup(NamedTuple):
     test_cost: Any
 
 
-def _exploration(v: dict, system: GymSystem) -> Exploration:
-    """ν: the ``[exploration]`` table's gain, policy or open-loop actions, with its noise."""
-    if v["gain"] is not None:
-        policy = checked("exploration.gain", system.linear_policy, v["gain"])
-    elif v["policy"] is not None:
-        policy = CallablePolicy(import_callable(v["policy"], "exploration.policy"), system.m)
-    else:
-        U = np.asarray(v["nominal"], dtype=np.float64)
-        if U.ndim != 2 or U.shape[1] != system.m or U.shape[0] < 1:
-            raise ValueError(f"[exploration] nominal must be [T, {system.m}], got shape {U.shape}")
-        policy = OpenLoopPolicy(U)
-    return Exploration(policy, float(v["action_std"]))
-
-
-def _test_cost(v: dict, shape: EnvShape):
-    if v["test_cost"] == "quadratic":
-        return design_cost(v, shape)
-    if v["test_cost"] == "reward":
-        return "reward"
-    return import_callable(v["test_cost"], "cost.test")
-
-
 @contextmanager
 def gym_setup(s: GymScenario) -> Iterator[Setup]:
     """The :class:`Setup` of ``s``; its env is closed when the ``with`` block ends."""
@@ -88,10 +66,30 @@ def gym_setup(s: GymScenario) -> Iterator[Setup]:
         try:
             v = s.plain
             shape = env_shape(system)
-            parts = compiled_agent(s, shape), _exploration(v, system), _test_cost(v, shape)
+            # ν: the [exploration] table's gain, policy or open-loop actions, with its noise
+            if v["gain"] is not None:
+                nu = checked("exploration.gain", system.linear_policy, v["gain"])
+            elif v["policy"] is not None:
+                nu = CallablePolicy(import_callable(v["policy"], "exploration.policy"), system.m)
+            else:
+                U = np.asarray(v["nominal"], dtype=np.float64)
+                if U.ndim != 2 or U.shape[1] != system.m or U.shape[0] < 1:
+                    raise ValueError(
+                        f"[exploration] nominal must be [T, {system.m}], got shape {U.shape}"
+                    )
+                nu = OpenLoopPolicy(U)
+            exploration = Exploration(nu, float(v["action_std"]))
+            # the test cost: the [cost] table's quadratic, the env's own reward, or a callable
+            if v["test_cost"] == "quadratic":
+                test_cost = design_cost(v, shape)
+            elif v["test_cost"] == "reward":
+                test_cost = "reward"
+            else:
+                test_cost = import_callable(v["test_cost"], "cost.test")
+            compiled = compiled_agent(s, shape)
         except (ValueError, TypeError) as err:
             raise ValueError(str(err).splitlines()[0]) from None
-        yield Setup(s, v, system, shape, *parts)
+        yield Setup(s, v, system, shape, compiled, exploration, test_cost)
 
 
 def check(s: GymScenario) -> None:
@@ -106,9 +104,11 @@ def run(method: str, s: GymScenario, seeds=None, progress: Progress | None = Non
     :func:`~loopid.experiments.config.seed_list`): ``N = iterations`` rows per seed."""
     if method not in METHODS:
         raise ValueError(f"unknown gym method {method!r}; choose from {', '.join(METHODS)}")
-    seeds = seed_list(s) if seeds is None else np.asarray(seeds)
-    fractions = policy_fractions(FRACTIONS[method], s.iterations, dagger_fraction=s.dagger_fraction)
     with gym_setup(s) as setup:
+        seeds = seed_list(s) if seeds is None else np.asarray(seeds)
+        fractions = policy_fractions(
+            FRACTIONS[method], s.iterations, dagger_fraction=s.dagger_fraction
+        )
         return run_learning_host(
             setup.system, setup.compiled.agent, setup.exploration, fractions,
             [int(x) for x in seeds], samples=s.samples, n_test=s.test_trajectories,
