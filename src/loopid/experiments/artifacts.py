@@ -158,3 +158,9 @@ def for_seed(arrays: dict, seed, where: str) -> dict[str, np.ndarray]:
         raise ValueError(f"seed {seed!r} is not in {where}; its seeds: {seeds}")
     i = seeds.index(int(seed))
     return {k: v if k.startswith("shared.") else v[i] for k, v in arrays.items() if k != "seeds"}
+
+
+def tested_gains(arrays: dict) -> np.ndarray:
+    """The gains a cell tested, from its saved ``arrays`` (one seed's or ``[S, ...]``):
+    ``best_K`` under ``test_policy = "best"``, else the last policy's ``K``."""
+    return arrays["best_K"] if "best_K" in arrays else arrays["K"]

@@ -15,6 +15,7 @@ import numpy as np
 
 from loopid.algorithms.gym_loop import EVALUATE, test_episodes
 from loopid.experiments import model_planner
+from loopid.experiments.artifacts import tested_gains
 from loopid.experiments.families.gym.scenario import GymScenario
 from loopid.experiments.families.gym.setup import Setup, gym_setup
 from loopid.models.linear_offset import LinearOffsetModel
@@ -40,8 +41,7 @@ def saved_controller(setup: Setup, arrays: dict):
         else:
             fmap = model_planner.feature_map(setup.scenario, nominal.n, nominal.m)
             model = FeatureModel(nominal, fmap, arrays["W_features"])
-    K = arrays.get("best_K", arrays["K"])  # the gains the run tested
-    return model, GainController(K, error, np.asarray(setup.shape.a_op))
+    return model, GainController(tested_gains(arrays), error, np.asarray(setup.shape.a_op))
 
 
 def load(s: GymScenario, method: str, arrays: dict):
@@ -57,7 +57,7 @@ def saved_policy(setup: Setup, arrays: dict):
     from loopid.algorithms.planning_agent import holds_model, restore_seeds
 
     if setup.compiled.mpc is None or not holds_model(arrays):
-        return setup.system.linear_policy(np.asarray(arrays.get("best_K", arrays["K"])))
+        return setup.system.linear_policy(np.asarray(tested_gains(arrays)))
     return setup.compiled.mpc(restore_seeds(setup.compiled.model, arrays))
 
 

@@ -9,7 +9,7 @@ share it too.
 """
 
 from collections.abc import Callable
-from functools import lru_cache, partial
+from functools import lru_cache
 from typing import Any, NamedTuple
 
 import jax
@@ -45,7 +45,7 @@ class Setup(NamedTuple):
       mpc: under ``planner_kind = "mpc"``, the plant flown by MPC on the seed's learned model
         (:func:`loopid.algorithms.mpc_plant.mpc_plant`), else None.
       replanner: MPC's settings (:func:`loopid.control.replanner`), else None.
-      test_noise: ``test_noise(seeds)``, the test noise of a seed chunk (a tuple of ints;
+      test_noise: ``test_noise(seeds)``, the test noise of a seed chunk (integer seeds;
         :class:`loopid.algorithms.loop.EvalNoise`; :func:`_noise`).
     """
 
@@ -119,8 +119,11 @@ def _setup(key: Scenario) -> Setup:
         iterations=key.iterations, n_test=key.test_trajectories, mode=key.sampling,
         gamma=key.gamma, test_policy=key.test_policy, controller=controller,
     )  # fmt: skip
-    noise = partial(_noise, key)
-    return Setup(plant, K_expert, nominal, model, agent, nus, program, flown, replan, noise)
+
+    def test_noise(seeds):
+        return _noise(key, tuple(int(seed) for seed in seeds))  # a hashable cache key
+
+    return Setup(plant, K_expert, nominal, model, agent, nus, program, flown, replan, test_noise)
 
 
 def _alternatives(key: Scenario):

@@ -34,7 +34,7 @@ def run(method: str, s: Scenario, seeds=None, progress: Progress | None = None) 
     seeds = np.arange(s.seeds) if seeds is None else np.asarray(seeds)
     padded = pad_seeds(seeds)
     st = setup(s)
-    noise = st.test_noise(tuple(int(seed) for seed in padded))
+    noise = st.test_noise(padded)
     if method == "expert":
         trace = run_fixed_policy(
             st.plant, st.K_expert, padded, iterations=s.iterations, samples=s.samples,
@@ -77,7 +77,7 @@ def run_lanes(
     seeds = np.arange(s.seeds) if seeds is None else np.asarray(seeds)
     padded = pad_seeds(seeds)
     st = setup(s)
-    noise = st.test_noise(tuple(int(seed) for seed in padded))
+    noise = st.test_noise(padded)
     schedules = [
         M.policy_fractions(m, s.iterations, dagger_fraction=s.dagger_fraction) for m in methods
     ]

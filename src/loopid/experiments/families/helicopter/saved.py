@@ -14,6 +14,7 @@ from loopid.algorithms.loop import (
     seed_keys,
 )
 from loopid.experiments import model_planner
+from loopid.experiments.artifacts import tested_gains
 from loopid.experiments.families.helicopter.assembly import setup
 from loopid.experiments.findings import findings_section
 from loopid.experiments.report import final_cost_sections
@@ -62,8 +63,7 @@ def load(s: Scenario, method: str, arrays: dict):
         return np.asarray(helicopter.to_error(x, target[min(t, T)]))
 
     delay = st.plant.task.delay if s.delay_mode == "latency" else 0
-    K = arrays.get("best_K", arrays["K"])  # the gains the run tested
-    controller = GainController(K, error, np.zeros(helicopter.N_ACTION), delay)
+    controller = GainController(tested_gains(arrays), error, np.zeros(helicopter.N_ACTION), delay)
     if _flew_mpc(s, arrays):
         params = st.model.restore(arrays)
         zero = np.zeros(helicopter.N_ACTION)
@@ -89,7 +89,7 @@ def evaluate(s: Scenario, arrays: dict, seeds, episodes: int, env=None) -> np.nd
     if env is not None:
         raise ValueError(f"--env {env!r} applies to gym runs, not to {s.name}")
     st = setup(s)
-    plant, policy = st.plant, jax.numpy.asarray(arrays.get("best_K", arrays["K"]))
+    plant, policy = st.plant, jax.numpy.asarray(tested_gains(arrays))
     if _flew_mpc(s, arrays):
         from loopid.algorithms.planning_agent import restore_seeds
 
@@ -127,7 +127,7 @@ def _flights(run_dir, s: Scenario, methods, seed: int) -> dict:
             params = st.model.restore(one)
             flights[m] = np.asarray(jax.jit(st.mpc.flight)(params, noise)[0])
         else:
-            flights[m] = fly(plant.task, one.get("best_K", one["K"]), noise, s.delay_mode)
+            flights[m] = fly(plant.task, tested_gains(one), noise, s.delay_mode)
     return flights
 
 
