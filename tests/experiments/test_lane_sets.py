@@ -67,4 +67,7 @@ def test_a_killed_lane_set_resumes_to_the_table_of_the_methods_one_by_one(
     _assert_same_run(one_by_one, out)
     lane_set = metadata(out / "cells" / "hover__abbeel.parquet")
     assert lane_set["lane_set"] == ",".join(LANES)
+    for m in LANES:  # the lane set's times are shared among its cells, both of them
+        meta = metadata(out / "cells" / f"hover__{m}.parquet")
+        assert 0 < float(meta["first_s"]) <= float(meta["wall_s"]), (m, meta)
     assert "lane_set" not in metadata(out / "cells" / "hover__expert.parquet")

@@ -114,8 +114,9 @@ def run_cell(
     default now); and its final policies and models.
 
     A tuple of methods is a lane set (the family's ``lane_sets``, run by its ``run_lanes``):
-    ``{method: CellResult}``, each cell's ``wall_s`` the lane set's time shared equally among
-    its methods (metadata ``lane_set`` names them)."""
+    ``{method: CellResult}``, each cell's ``wall_s`` and ``first_s`` the lane set's times shared
+    equally among its methods (metadata ``lane_set`` names them), so that a run's cells add up
+    to its time."""
     t0 = time.perf_counter() if started is None else started
     first = [None]
 
@@ -133,7 +134,8 @@ def run_cell(
     wall = time.perf_counter() - t0
     results = {}
     for m, trace in traces.items():
-        meta = {"wall_s": f"{wall / len(traces):.3f}", "first_s": f"{first[0] or wall:.3f}"}
+        share = len(traces)
+        meta = {"wall_s": f"{wall / share:.3f}", "first_s": f"{(first[0] or wall) / share:.3f}"}
         if isinstance(method, tuple):
             meta["lane_set"] = ",".join(method)
         table = with_metadata(trace_table(s.name, m, trace), **meta)
