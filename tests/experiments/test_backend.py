@@ -22,11 +22,22 @@ def one_gpu(monkeypatch):
     monkeypatch.setattr(backend, "device_bytes", lambda: 80 * 10**9)
 
 
+@pytest.mark.skipif(backend.accelerator(), reason="a CPU's facts; the next test checks a device")
 def test_the_cpu_keeps_its_workers_cap_and_budget():
     assert backend.describe() == "cpu" and backend.device_bytes() is None
     assert backend.fold_workers(4) == 4
     assert chunks.speed_seeds(40) == chunks.SPEED_SEEDS == 12 and chunks.speed_seeds(5) == 5
     assert chunks.budget(2.0, 2) == 10**9
+
+
+@pytest.mark.skipif(not backend.accelerator(), reason="needs an accelerator (run on a GPU)")
+def test_a_real_accelerator_is_described_folded_and_budgeted_by_its_own_memory():
+    assert backend.describe().startswith(f"{backend.name()} ({backend.device_count()} x ")
+    memory = backend.device_bytes()
+    assert memory is not None and memory > 10**9
+    assert backend.fold_workers(backend.worker_devices() + 3) == backend.worker_devices()
+    assert chunks.speed_seeds(1000) == 1000  # no speed cap on a device
+    assert chunks.budget(None, 1) <= memory
 
 
 def test_an_accelerator_folds_workers_to_one_per_device_in_one_line(one_gpu):
