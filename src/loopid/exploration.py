@@ -13,6 +13,9 @@ Each sampler is a pure function ``sample(key, m) -> Transitions`` of ``m`` trans
 - ``ν_en`` (:func:`nu_expert`, ``action_std = 0.01``): the same, with ``N(0, 0.0001 I)`` added
   to the expert's actions while it flies.
 
+:func:`make_nus` builds all three; ν_e and ν_en are then one :func:`expert_draw` at two noise
+levels, which a loop program serving all three methods' ν compiles once.
+
 With a delay the plant's readings decide what a ν sample is: under ``delay_mode =
 "fifo"`` each pair is queried with the pending FIFO filled with the action (``nu_pending =
 "hold"``) or empty (``"zero"``), or, for ν_e/ν_en with ``"rollout"``, not queried at all: the
@@ -28,6 +31,7 @@ from collections.abc import Callable
 import jax
 import jax.numpy as jnp
 
+from loopid.algorithms.contracts import SharedSampler
 from loopid.algorithms.plant import Plant, Transitions, draw, flatten
 
 NU_KINDS = ("t", "e", "en")
@@ -64,18 +68,15 @@ def nu_trajectory(
     return sample
 
 
-def nu_expert(plant: Plant, K_expert: jax.Array, *, action_std: float = 0.0) -> Sampler:
-    """``ν_e`` (``action_std = 0``) or ``ν_en`` (``action_std = 0.01``): the expert's pairs.
+def expert_draw(plant: Plant, K_expert: jax.Array) -> Callable:
+    """``draw(key, count, action_std)``: ``count`` pairs visited by the expert ``K_expert``
+    ``[horizon, m, n]`` (its affine gain in error coordinates) flying with action noise of std
+    ``action_std`` (a number or a traced scalar). Each call runs ``ceil(count / horizon)`` fresh
+    expert rollouts, draws ``count`` visited pairs uniformly, and queries the system there
+    (``plant.nu_pending == "rollout"``: keeps the rollouts' own recorded transitions instead,
+    module docstring)."""
 
-    ``K_expert: [horizon, m, n]`` is the expert's affine gain in error coordinates. Each call runs
-    ``ceil(count / horizon)`` fresh expert rollouts (with the action noise), draws ``count`` visited
-    pairs uniformly, and queries the system there (``plant.nu_pending == "rollout"``: keeps the
-    rollouts' own recorded transitions instead, module docstring).
-    """
-    if action_std < 0:
-        raise ValueError(f"action_std must be >= 0, got {action_std}")
-
-    def sample(key: jax.Array, count: int) -> Transitions:
+    def draw_pairs(key: jax.Array, count: int, action_std) -> Transitions:
         k_roll, k_draw, k_q = jax.random.split(key, 3)
         runs = -(-count // plant.horizon)
         tr = jax.vmap(lambda k: plant.rollout(K_expert, k, action_std))(
@@ -87,7 +88,36 @@ def nu_expert(plant: Plant, K_expert: jax.Array, *, action_std: float = 0.0) -> 
         fresh = _query_many(plant, visited.x, visited.du, visited.t, k_q)
         return fresh._replace(mask=fresh.mask & visited.mask)
 
-    return sample
+    return draw_pairs
+
+
+def nu_expert(plant: Plant, K_expert: jax.Array, *, action_std: float = 0.0) -> SharedSampler:
+    """``ν_e`` (``action_std = 0``) or ``ν_en`` (``action_std = 0.01``): the expert's pairs
+    (:func:`expert_draw`)."""
+    if action_std < 0:
+        raise ValueError(f"action_std must be >= 0, got {action_std}")
+    return SharedSampler(expert_draw(plant, K_expert), float(action_std))
+
+
+def make_nus(
+    plant: Plant,
+    K_expert: jax.Array,
+    *,
+    state_var: float = 0.0025,
+    action_var: float = 0.0001,
+    expert_action_var: float = 0.0001,
+) -> list[Sampler]:
+    """The samplers of :data:`NU_KINDS`, ``[ν_t, ν_e, ν_en]``; ν_e and ν_en share one
+    :func:`expert_draw` (:class:`~loopid.algorithms.contracts.SharedSampler`), so a program that
+    serves all three holds the expert's rollouts once."""
+    if expert_action_var < 0:
+        raise ValueError(f"expert_action_var must be >= 0, got {expert_action_var}")
+    expert = expert_draw(plant, K_expert)
+    return [
+        nu_trajectory(plant, state_var=state_var, action_var=action_var),
+        SharedSampler(expert, 0.0),
+        SharedSampler(expert, math.sqrt(expert_action_var)),
+    ]
 
 
 def make_nu(
@@ -100,10 +130,9 @@ def make_nu(
     expert_action_var: float = 0.0001,
 ) -> Sampler:
     """The sampler for ``kind`` in :data:`NU_KINDS` (``"t"``, ``"e"``, ``"en"``)."""
-    if kind == "t":
-        return nu_trajectory(plant, state_var=state_var, action_var=action_var)
-    if kind == "e":
-        return nu_expert(plant, K_expert, action_std=0.0)
-    if kind == "en":
-        return nu_expert(plant, K_expert, action_std=math.sqrt(expert_action_var))
-    raise ValueError(f"unknown exploration distribution {kind!r}; choose one of {NU_KINDS}")
+    if kind not in NU_KINDS:
+        raise ValueError(f"unknown exploration distribution {kind!r}; choose one of {NU_KINDS}")
+    return make_nus(
+        plant, K_expert, state_var=state_var, action_var=action_var,
+        expert_action_var=expert_action_var,
+    )[NU_KINDS.index(kind)]  # fmt: skip

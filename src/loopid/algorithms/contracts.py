@@ -10,17 +10,39 @@ cell returns.
   compute.
 - :class:`LoopProgram`: the learning loop's compiled programs; :class:`EvalNoise`: the seeds' test
   noise in the layout the test rollouts read.
+- :class:`SharedSampler`: an exploration sampler ν that is a drawing function shared with other
+  samplers, at its own parameter.
 
-They are NamedTuples of arrays and pure functions, so they pass through ``jit`` and ``vmap``.
+They are NamedTuples of arrays and pure functions, so they pass through ``jit`` and ``vmap``
+(the sampler, a function itself, excepted).
 """
 
 from collections.abc import Callable
+from dataclasses import dataclass
 from typing import Any, NamedTuple
 
 import jax
 import numpy as np
 
 from loopid.algorithms.plant import Transitions
+
+
+@dataclass(frozen=True)
+class SharedSampler:
+    """A sampler ν that is a drawing function shared with other samplers, at its own parameter:
+    ``sampler(key, count) = draw(key, count, param)`` -> :class:`Transitions` of ``count`` rows.
+
+    ν_e and ν_en are one ``draw`` (the expert's rollouts) at two action-noise levels
+    (:func:`loopid.exploration.make_nus`). A loop program that serves several samplers (its
+    ``which``) compiles each distinct ``draw`` once and passes the parameter as a traced value,
+    so the expert's rollouts appear in the program once, not once per ν. (A frozen dataclass,
+    not a NamedTuple, so that it can be jitted like the plain function it stands for.)"""
+
+    draw: Callable[[jax.Array, int, jax.Array], Transitions]
+    param: float
+
+    def __call__(self, key: jax.Array, count: int) -> Transitions:
+        return self.draw(key, count, self.param)
 
 
 class SolverInfo(NamedTuple):

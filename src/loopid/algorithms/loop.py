@@ -45,6 +45,7 @@ from loopid.algorithms.contracts import (
     EvalNoise,
     LoopProgram,
     Row,
+    SharedSampler,
     SolverInfo,
     Trace,
 )
@@ -222,6 +223,23 @@ def _evaluate(
     return costs, div, carry
 
 
+def _sampler_branches(nus: Sequence[Callable], samples: int):
+    """The distinct drawing functions of the samplers ``nus``, each vmapped over seeds as
+    ``f(keys [S], param)``, and per sampler its function's index and parameter (``[len(nus)]``
+    arrays): samplers sharing one :class:`SharedSampler` ``draw`` (ν_e and ν_en) are one branch
+    of the switch that picks a method's ν, so a program holds that function once."""
+    draws, branch, param = [], [], []
+    for f in nus:
+        shared = isinstance(f, SharedSampler)
+        d = f.draw if shared else (lambda key, count, _, f=f: f(key, count))
+        if not any(d is e for e in draws):
+            draws.append(d)
+        branch.append(next(i for i, e in enumerate(draws) if e is d))
+        param.append(f.param if shared else 0.0)
+    branches = [jax.vmap(lambda k, q, d=d: d(k, samples, q), in_axes=(0, None)) for d in draws]
+    return branches, np.asarray(branch, np.int32), jnp.asarray(param, jnp.float64)
+
+
 def make_loop_program(
     plant: LoopPlant,
     agent: Agent,
@@ -262,6 +280,7 @@ def make_loop_program(
         )
     hist_len = iterations if test_policy == "mixture" else 1
     nus = [nu] if callable(nu) else list(nu or [])
+    branches, branch, param = _sampler_branches(nus, samples)
 
     def seeds_in_turn(f, *args):
         """``f`` on each lane in turn (``lax.map``): a solver's ``cond`` then skips the branch it
@@ -312,17 +331,19 @@ def make_loop_program(
             return None
         methods = which.shape[0]
         nu_keys = jax.vmap(lambda k: iteration_keys(k, n).nu)(keys)
-        samplers = [jax.vmap(lambda k, f=f: f(k, samples)) for f in nus]
         if len(nus) == 1:
-            one = samplers[0](nu_keys)
-        elif methods == 1:
-            one = jax.lax.switch(which[0], samplers, nu_keys)
-        if len(nus) == 1 or methods == 1:
+            one = jax.vmap(lambda k: nus[0](k, samples))(nu_keys)
+            return jax.tree_util.tree_map(lambda a: jnp.concatenate([a] * methods), one)
+
+        def drawn(kind):  # one sampler's draws, its drawing function picked by a switch
+            return jax.lax.switch(jnp.asarray(branch)[kind], branches, nu_keys, param[kind])
+
+        if methods == 1:
+            one = drawn(which[0])
             return jax.tree_util.tree_map(lambda a: jnp.concatenate([a] * methods), one)
         # each sampler under the same switch as a single method's (a lax.map over the kinds
         # keeps the index traced): drawn outside one, ν_e's and ν_en's last bits changed
-        kinds = jnp.arange(len(nus))
-        every = jax.lax.map(lambda k: jax.lax.switch(k, samplers, nu_keys), kinds)
+        every = jax.lax.map(drawn, jnp.arange(len(nus)))
         return jax.tree_util.tree_map(lambda a: a[which].reshape(-1, *a.shape[2:]), every)
 
     def learn(carry: _Carry, key, n, p, from_nu):

@@ -22,7 +22,7 @@ from loopid.algorithms.loop import Agent, LoopProgram, make_loop_program, seed_k
 from loopid.algorithms.plant import Plant
 from loopid.experiments import model_planner
 from loopid.experiments.scenarios import Scenario
-from loopid.exploration import NU_KINDS, make_nu
+from loopid.exploration import make_nus
 from loopid.models.linear_offset import LinearOffsetModel
 from loopid.systems import helicopter
 from loopid.systems.tasks import make_task
@@ -93,13 +93,10 @@ def _setup(key: Scenario) -> Setup:
         start=helicopter.to_error(jnp.asarray(task.x0), jnp.asarray(task.target)[0]),
         U0=np.zeros((plant.horizon, helicopter.N_ACTION)), alternatives=alternatives, model=model,
     )  # fmt: skip
-    nus = [
-        make_nu(
-            kind, plant, K_expert, state_var=key.nu_state_var, action_var=key.nu_action_var,
-            expert_action_var=key.expert_action_var,
-        )
-        for kind in NU_KINDS
-    ]  # fmt: skip
+    nus = make_nus(
+        plant, K_expert, state_var=key.nu_state_var, action_var=key.nu_action_var,
+        expert_action_var=key.expert_action_var,
+    )  # fmt: skip
     flown, controller, replan = None, None, None
     if key.planner_kind == "mpc":  # MPC flies the seed's learned model (its parameters)
         from loopid.algorithms.mpc_plant import mpc_plant

@@ -1,0 +1,62 @@
+"""The ν samplers as a loop program holds them (loopid.exploration, loop._sampler_branches): ν_e
+and ν_en are one drawing function at two action-noise levels, so the switch that picks a
+method's ν has two branches for three samplers, and each sampler drawn through its branch gives
+the very draws it gives alone, bit for bit."""
+
+import jax
+import numpy as np
+import pytest
+
+from loopid.algorithms.contracts import SharedSampler
+from loopid.algorithms.expert import expert_gains
+from loopid.algorithms.helicopter_plant import helicopter_plant
+from loopid.algorithms.loop import _sampler_branches
+from loopid.exploration import NU_KINDS, make_nu, make_nus
+from loopid.systems.tasks import make_task
+
+SAMPLES = 30
+
+
+@pytest.fixture(scope="module")
+def hover():
+    task = make_task("hover")
+    return helicopter_plant(task), expert_gains(task)
+
+
+def test_nu_e_and_nu_en_share_one_draw_at_their_own_noise(hover):
+    plant, K = hover
+    nus = make_nus(plant, K, expert_action_var=0.0004)
+    t, e, en = nus
+    assert not isinstance(t, SharedSampler)
+    assert isinstance(e, SharedSampler) and e.draw is en.draw
+    assert (e.param, en.param) == (0.0, 0.02)
+    branches, branch, param = _sampler_branches(nus, SAMPLES)
+    assert len(branches) == 2 and branch.tolist() == [0, 1, 1]
+    np.testing.assert_array_equal(np.asarray(param), [0.0, 0.0, 0.02])
+    for kind in NU_KINDS:  # one kind alone is the same sampler as in the list
+        one = make_nu(kind, plant, K, expert_action_var=0.0004)
+        assert type(one) is type(nus[NU_KINDS.index(kind)])
+
+
+def test_each_sampler_drawn_through_its_branch_gives_its_own_draws(hover):
+    plant, K = hover
+    nus = make_nus(plant, K)
+    branches, branch, param = _sampler_branches(nus, SAMPLES)
+    keys = jax.random.split(jax.random.key(5), 3)
+    draws = []
+    for k, sampler in enumerate(nus):
+        alone = jax.jit(jax.vmap(lambda key, f=sampler: f(key, SAMPLES)))(keys)
+        branch_fn = branches[int(branch[k])]
+        through = jax.jit(lambda keys, q, f=branch_fn: f(keys, q))(keys, param[k])
+        for a, b in zip(jax.tree.leaves(alone), jax.tree.leaves(through), strict=True):
+            np.testing.assert_array_equal(np.asarray(a), np.asarray(b), err_msg=NU_KINDS[k])
+        draws.append(alone)
+    # the expert's action noise is live in ν_en and absent in ν_e: different pairs, same shapes
+    assert not np.array_equal(np.asarray(draws[1].du), np.asarray(draws[2].du))
+    assert np.asarray(draws[1].du).shape == np.asarray(draws[2].du).shape == (3, SAMPLES, 4)
+
+
+def test_a_negative_expert_action_variance_is_refused_by_name(hover):
+    plant, K = hover
+    with pytest.raises(ValueError, match="expert_action_var must be >= 0, got -1"):
+        make_nus(plant, K, expert_action_var=-1.0)
