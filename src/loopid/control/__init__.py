@@ -20,8 +20,6 @@ never NaN.
   for controllers inside a compiled loop), :class:`Penalized`,
   :func:`quadratic_cost`, :func:`action_penalty`: the planner of nonlinear models
   (:mod:`loopid.control.plan`, :mod:`loopid.control.mpc`)
-- :func:`spectral_radius`: max |eigenvalue| of a batch of matrices, the LQR's stability test
-  (on an accelerator one host callback for the whole batch)
 - :func:`rollout`, :func:`linear_rollout`, :func:`tracking_rollout` -> trajectories
 - :func:`value_iteration`, :func:`policy_iteration`, :func:`evaluate`, :func:`occupancy`: finite
   MDPs (batched), exact policy evaluation and discounted occupancy D_{μ,π}
@@ -45,7 +43,6 @@ from loopid.control.plan import (
     quadratic_cost,
 )
 from loopid.control.rollout import Rollout, linear_rollout, rollout, tracking_rollout
-from loopid.control.stability import spectral_radius
 from loopid.control.tvlqr import TVLQRSolution, tvlqr
 from loopid.control.value_iteration import (
     PIResult,
@@ -88,7 +85,6 @@ __all__ = [
     "quadratize",
     "replanner",
     "rollout",
-    "spectral_radius",
     "tracking_rollout",
     "trajectory_cost",
     "tvlqr",
