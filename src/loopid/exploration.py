@@ -99,27 +99,6 @@ def nu_expert(plant: Plant, K_expert: jax.Array, *, action_std: float = 0.0) -> 
     return SharedSampler(expert_draw(plant, K_expert), float(action_std))
 
 
-def make_nus(
-    plant: Plant,
-    K_expert: jax.Array,
-    *,
-    state_var: float = 0.0025,
-    action_var: float = 0.0001,
-    expert_action_var: float = 0.0001,
-) -> list[Sampler]:
-    """The samplers of :data:`NU_KINDS`, ``[ν_t, ν_e, ν_en]``; ν_e and ν_en share one
-    :func:`expert_draw` (:class:`~loopid.algorithms.contracts.SharedSampler`), so a program that
-    serves all three holds the expert's rollouts once."""
-    if expert_action_var < 0:
-        raise ValueError(f"expert_action_var must be >= 0, got {expert_action_var}")
-    expert = expert_draw(plant, K_expert)
-    return [
-        nu_trajectory(plant, state_var=state_var, action_var=action_var),
-        SharedSampler(expert, 0.0),
-        SharedSampler(expert, math.sqrt(expert_action_var)),
-    ]
-
-
 def make_nu(
     kind: str,
     plant: Plant,
@@ -130,9 +109,21 @@ def make_nu(
     expert_action_var: float = 0.0001,
 ) -> Sampler:
     """The sampler for ``kind`` in :data:`NU_KINDS` (``"t"``, ``"e"``, ``"en"``)."""
-    if kind not in NU_KINDS:
-        raise ValueError(f"unknown exploration distribution {kind!r}; choose one of {NU_KINDS}")
-    return make_nus(
-        plant, K_expert, state_var=state_var, action_var=action_var,
-        expert_action_var=expert_action_var,
-    )[NU_KINDS.index(kind)]  # fmt: skip
+    if kind == "t":
+        return nu_trajectory(plant, state_var=state_var, action_var=action_var)
+    if kind == "e":
+        return nu_expert(plant, K_expert, action_std=0.0)
+    if kind == "en":
+        if expert_action_var < 0:
+            raise ValueError(f"expert_action_var must be >= 0, got {expert_action_var}")
+        return nu_expert(plant, K_expert, action_std=math.sqrt(expert_action_var))
+    raise ValueError(f"unknown exploration distribution {kind!r}; choose one of {NU_KINDS}")
+
+
+def make_nus(plant: Plant, K_expert: jax.Array, **variances) -> list[Sampler]:
+    """The samplers of :data:`NU_KINDS`, ``[ν_t, ν_e, ν_en]`` (``variances``: those of
+    :func:`make_nu`), with ν_en at its own action noise on ν_e's :func:`expert_draw`
+    (:class:`~loopid.algorithms.contracts.SharedSampler`), so that a program serving all three
+    holds the expert's rollouts once."""
+    t, e, en = (make_nu(kind, plant, K_expert, **variances) for kind in NU_KINDS)
+    return [t, e, SharedSampler(e.draw, en.param)]

@@ -33,9 +33,10 @@ def test_nu_e_and_nu_en_share_one_draw_at_their_own_noise(hover):
     branches, branch, param = _sampler_branches(nus, SAMPLES)
     assert len(branches) == 2 and branch.tolist() == [0, 1, 1]
     np.testing.assert_array_equal(np.asarray(param), [0.0, 0.0, 0.02])
-    for kind in NU_KINDS:  # one kind alone is the same sampler as in the list
-        one = make_nu(kind, plant, K, expert_action_var=0.0004)
-        assert type(one) is type(nus[NU_KINDS.index(kind)])
+    for kind in NU_KINDS:  # one kind alone is the same sampler as in the list, at its parameter
+        one, listed = make_nu(kind, plant, K, expert_action_var=0.0004), nus[NU_KINDS.index(kind)]
+        assert type(one) is type(listed)
+        assert getattr(one, "param", None) == getattr(listed, "param", None)
 
 
 def test_each_sampler_drawn_through_its_branch_gives_its_own_draws(hover):
@@ -56,7 +57,10 @@ def test_each_sampler_drawn_through_its_branch_gives_its_own_draws(hover):
     assert np.asarray(draws[1].du).shape == np.asarray(draws[2].du).shape == (3, SAMPLES, 4)
 
 
-def test_a_negative_expert_action_variance_is_refused_by_name(hover):
+def test_a_negative_variance_is_refused_by_name_by_the_sampler_that_uses_it(hover):
     plant, K = hover
     with pytest.raises(ValueError, match="expert_action_var must be >= 0, got -1"):
         make_nus(plant, K, expert_action_var=-1.0)
+    with pytest.raises(ValueError, match="state_var=-1"):
+        make_nu("t", plant, K, state_var=-1.0)
+    make_nu("e", plant, K, state_var=-1.0, expert_action_var=-1.0)  # uses neither

@@ -115,8 +115,8 @@ def run_cell(
 
     A tuple of methods is a lane set (the family's ``lane_sets``, run by its ``run_lanes``):
     ``{method: CellResult}``, each cell's ``wall_s`` and ``first_s`` the lane set's times shared
-    equally among its methods (metadata ``lane_set`` names them), so that a run's cells add up
-    to its time."""
+    equally among its methods (metadata ``lane_set`` names them), so that a lane set's cells
+    add up to its time."""
     t0 = time.perf_counter() if started is None else started
     first = [None]
 
