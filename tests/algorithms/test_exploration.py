@@ -31,7 +31,7 @@ def test_nu_e_and_nu_en_share_one_draw_at_their_own_noise(hover):
     assert isinstance(e, SharedSampler) and e.draw is en.draw
     assert (e.param, en.param) == (0.0, 0.02)
     branches, branch, param = _sampler_branches(nus, SAMPLES)
-    assert len(branches) == 2 and branch.tolist() == [0, 1, 1]
+    assert len(branches) == 2 and np.asarray(branch).tolist() == [0, 1, 1]
     np.testing.assert_array_equal(np.asarray(param), [0.0, 0.0, 0.02])
     for kind in NU_KINDS:  # one kind alone is the same sampler as in the list, at its parameter
         one, listed = make_nu(kind, plant, K, expert_action_var=0.0004), nus[NU_KINDS.index(kind)]

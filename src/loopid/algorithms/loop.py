@@ -228,16 +228,17 @@ def _sampler_branches(nus: Sequence[Callable], samples: int):
     ``f(keys [S], param)``, and per sampler its function's index and parameter (``[len(nus)]``
     arrays): samplers sharing one :class:`SharedSampler` ``draw`` (ν_e and ν_en) are one branch
     of the switch that picks a method's ν, so a program holds that function once."""
+    index: dict[int, int] = {}  # id(draw) -> its branch
     draws, branch, param = [], [], []
     for f in nus:
-        shared = isinstance(f, SharedSampler)
-        d = f.draw if shared else (lambda key, count, _, f=f: f(key, count))
-        if not any(d is e for e in draws):
+        d = f.draw if isinstance(f, SharedSampler) else (lambda key, count, _, f=f: f(key, count))
+        if id(d) not in index:
+            index[id(d)] = len(draws)
             draws.append(d)
-        branch.append(next(i for i, e in enumerate(draws) if e is d))
-        param.append(f.param if shared else 0.0)
+        branch.append(index[id(d)])
+        param.append(f.param if isinstance(f, SharedSampler) else 0.0)
     branches = [jax.vmap(lambda k, q, d=d: d(k, samples, q), in_axes=(0, None)) for d in draws]
-    return branches, np.asarray(branch, np.int32), jnp.asarray(param, jnp.float64)
+    return branches, jnp.asarray(branch, jnp.int32), jnp.asarray(param, jnp.float64)
 
 
 def make_loop_program(
@@ -331,20 +332,20 @@ def make_loop_program(
             return None
         methods = which.shape[0]
         nu_keys = jax.vmap(lambda k: iteration_keys(k, n).nu)(keys)
-        if len(nus) == 1:
-            one = jax.vmap(lambda k: nus[0](k, samples))(nu_keys)
-            return jax.tree_util.tree_map(lambda a: jnp.concatenate([a] * methods), one)
 
         def drawn(kind):  # one sampler's draws, its drawing function picked by a switch
-            return jax.lax.switch(jnp.asarray(branch)[kind], branches, nu_keys, param[kind])
+            return jax.lax.switch(branch[kind], branches, nu_keys, param[kind])
 
-        if methods == 1:
+        if len(nus) == 1:
+            one = jax.vmap(lambda k: nus[0](k, samples))(nu_keys)
+        elif methods == 1:
             one = drawn(which[0])
-            return jax.tree_util.tree_map(lambda a: jnp.concatenate([a] * methods), one)
-        # each sampler under the same switch as a single method's (a lax.map over the kinds
-        # keeps the index traced): drawn outside one, ν_e's and ν_en's last bits changed
-        every = jax.lax.map(drawn, jnp.arange(len(nus)))
-        return jax.tree_util.tree_map(lambda a: a[which].reshape(-1, *a.shape[2:]), every)
+        else:
+            # each sampler under the same switch as a single method's (a lax.map over the kinds
+            # keeps the index traced): drawn outside one, ν_e's and ν_en's last bits changed
+            every = jax.lax.map(drawn, jnp.arange(len(nus)))
+            return jax.tree_util.tree_map(lambda a: a[which].reshape(-1, *a.shape[2:]), every)
+        return jax.tree_util.tree_map(lambda a: jnp.concatenate([a] * methods), one)
 
     def learn(carry: _Carry, key, n, p, from_nu):
         keys = iteration_keys(key, n)
