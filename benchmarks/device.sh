@@ -8,10 +8,13 @@
 # 1. `loopid reproduce` (the whole of Figure 2 and the MDP study), cold: its report.md
 #    (backend, device, wall time) and both tables, to compare with a CPU's
 #    (docs/benchmarks.md, section "gpu").
-# 2. benchmarks/seeds.py at 20 and 1,000 seeds: a hover cell's time per seed once compiled.
-# 3. The tests of what an accelerator changes (the real device, batched LQR, lane sets).
-# 4. `loopid reproduce --quick`, cold.
-# Limits in seconds: FULL_S, SEEDS_S, TEST_S (each test file), QUICK_S. Python: $PYTHON (default python3).
+# 2. `loopid reproduce --quick`, cold, with the default workers (threads sharing one GPU) and
+#    with --workers 1 (one cell after another): the time each takes, and both tables (the same
+#    seeds give the same table on one backend whatever the workers).
+# 3. benchmarks/seeds.py at 20 and 1,000 seeds: a hover cell's time per seed once compiled.
+# 4. The tests of what an accelerator changes (the real device, batched LQR, lane sets).
+# Limits in seconds: FULL_S, QUICK_S (each), SEEDS_S, TEST_S (each test file). Python: $PYTHON
+# (default python3).
 set -u
 out=${1:-${OUT:-/tmp/loopid-device}}
 mkdir -p "$out"
@@ -27,25 +30,50 @@ timed() {  # timed LIMIT CACHE COMMAND...: run with its own empty compilation ca
     code=$?
     echo "exit $code after $(($(date +%s) - start)) s: $*" | tee -a "$log"
 }
+cells() {  # cells NAME RUN_DIR...: each finished cell's times, and when its file was written
+    "$py" - "$out/cells_$1.json" "$started" "${@:2}" <<'PY' >>"$log" 2>&1
+import json, sys
+from pathlib import Path
+import pyarrow.parquet as pq
+out, start, dirs = sys.argv[1], float(sys.argv[2]), sys.argv[3:]
+rows = {}
+for d in map(Path, dirs):
+    for f in sorted(d.glob("cells/**/*.parquet")):
+        meta = {k.decode(): v.decode() for k, v in (pq.read_schema(f).metadata or {}).items()}
+        keep = {k[7:]: v for k, v in meta.items() if k[7:] in ("wall_s", "first_s", "chunks")}
+        rows[f"{d.name}/{f.relative_to(d)}"] = {**keep, "done_at_s": round(f.stat().st_mtime - start, 1)}
+json.dump(rows, open(out, "w"), indent=1)
+print(f"{len(rows)} cells recorded in {out}")
+PY
+}
 "$py" -c "import jax; print('JAX', jax.__version__, jax.devices())" >>"$log" 2>&1
 
 step "1. loopid reproduce, cold"
+started=$(date +%s)
 timed "${FULL_S:-300}" full "$py" -m loopid reproduce --out "$work/runs" --quiet
+cells full "$work/runs" "$work/runs/mdp"
 cp "$work/runs/report.md" "$out/report.md" 2>/dev/null
 cp "$work/runs/results.parquet" "$out/results.parquet" 2>/dev/null
 cp "$work/runs/mdp/results.parquet" "$out/mdp_results.parquet" 2>/dev/null
 
-step "2. a hover cell of 20 and of 1,000 seeds"
+step "2. loopid reproduce --quick, cold: default workers, then --workers 1"
+started=$(date +%s)
+timed "${QUICK_S:-120}" quick "$py" -m loopid reproduce --quick --out "$work/quick" --quiet
+cells quick "$work/quick"
+cp "$work/quick/results.parquet" "$out/quick_results.parquet" 2>/dev/null
+started=$(date +%s)
+timed "${QUICK_S:-120}" quick1 "$py" -m loopid reproduce --quick --workers 1 --out "$work/quick1" --quiet
+cells quick1 "$work/quick1"
+cp "$work/quick1/results.parquet" "$out/quick1_results.parquet" 2>/dev/null
+
+step "3. a hover cell of 20 and of 1,000 seeds"
 timed "${SEEDS_S:-180}" seeds "$py" benchmarks/seeds.py --sizes 20,1000
 
-step "3. the accelerator's tests (one pytest a file: a time limit loses one file's report)"
+step "4. the accelerator's tests (one pytest a file: a time limit loses one file's report)"
 for f in tests/experiments/test_backend.py tests/algorithms/test_batched_lqr.py \
     tests/experiments/test_lane_sets.py; do
     timed "${TEST_S:-90}" "tests-$(basename "$f" .py)" "$py" -m pytest -q -p no:cacheprovider "$f"
 done
-
-step "4. loopid reproduce --quick, cold"
-timed "${QUICK_S:-120}" quick "$py" -m loopid reproduce --quick --out "$work/quick" --quiet
 
 step "done"
 rm -rf "$work"

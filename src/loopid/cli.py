@@ -131,8 +131,8 @@ def _methods(text: str) -> list[str]:
 
 
 def _workers(executor: str, workers: int | None) -> int:
-    """--workers: the local executor's worker processes (default: one per CPU, at most 4; on an
-    accelerator one per device)."""
+    """--workers: the local executor's workers (default: one process per CPU, at most 4; on
+    several GPUs one process per device; on one GPU 4 threads sharing it)."""
     from loopid.experiments.executors import check_workers, default_workers
 
     if workers is None:
@@ -162,8 +162,9 @@ EXECUTOR = typer.Option("local", "--executor", help="local (this machine) or ray
 WORKERS = typer.Option(
     None,
     "--workers",
-    help="local: worker processes, one cell each at a time (default: one per CPU, at most 4; on "
-    "a GPU one per device; 1 = in this process).",
+    help="local: workers, one cell each at a time: processes (default: one per CPU, at most 4; "
+    "on several GPUs one per device) or, on one GPU, threads sharing it (default 4); 1 = in "
+    "this process, in order.",
 )
 RAY_ADDRESS = typer.Option(
     None, "--ray-address", help="Join this Ray cluster (default: start a local one)."

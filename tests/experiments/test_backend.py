@@ -1,8 +1,8 @@
 """What the backend implies for a run (loopid.experiments.backend): on an accelerator one worker
-process per device (more are folded, with one line), chunks without the CPU's speed cap, a
-memory budget from the device's memory, and each worker pinned to its own device. The
-accelerator is simulated on a CPU; on an accelerator the CPU's test is skipped and one more
-checks the real device."""
+process per device (more are folded, with one line), or threads of this process sharing the one
+device it can use, chunks without the CPU's speed cap, a memory budget from the device's memory
+(shared by the threads), and each worker pinned to its own device. The accelerator is simulated
+on a CPU; on an accelerator the CPU's test is skipped and one more checks the real device."""
 
 import os
 
@@ -33,18 +33,30 @@ def test_the_cpu_keeps_its_workers_cap_and_budget():
 @pytest.mark.skipif(not backend.accelerator(), reason="needs an accelerator (run on a GPU)")
 def test_a_real_accelerator_is_described_folded_and_budgeted_by_its_own_memory():
     assert backend.describe().startswith(f"{backend.name()} ({backend.device_count()} x ")
-    assert backend.fold_workers(backend.worker_devices() + 3) == backend.worker_devices()
+    devices = backend.worker_devices()
+    assert backend.fold_workers(devices + 3) == (devices + 3 if devices == 1 else devices)
     assert chunks.speed_seeds(1000) == 1000  # no speed cap on a device
     memory = backend.device_bytes()  # None where the device does not report its memory
     if memory is not None:
         assert memory > 10**9 and chunks.budget(None, 1) == int(backend.DEVICE_FRACTION * memory)
 
 
-def test_an_accelerator_folds_workers_to_one_per_device_in_one_line(one_gpu):
+def test_several_gpus_fold_workers_to_one_process_per_device_in_one_line(one_gpu, monkeypatch):
+    monkeypatch.setattr(backend, "device_count", lambda: 2)
     lines = []
-    assert backend.fold_workers(4, lines.append) == 1
-    assert len(lines) == 1 and lines[0].startswith("--workers 4: 1 gpu device;"), lines
-    assert backend.fold_workers(1, lines.append) == 1 and len(lines) == 1  # nothing to fold
+    assert not backend.shared_device() and backend.fold_workers(4, lines.append) == 2
+    assert lines == [
+        "--workers 4: 2 gpu devices; running 2 worker processes (processes sharing a device "
+        "time-slice it)"
+    ]
+    assert backend.fold_workers(2, lines.append) == 2 and len(lines) == 1  # nothing to fold
+
+
+def test_one_gpu_keeps_its_workers_as_threads_sharing_its_memory(one_gpu):
+    lines = []
+    assert backend.shared_device() and backend.fold_workers(4, lines.append) == 4 and not lines
+    assert chunks.budget(None, 4) == int(backend.DEVICE_FRACTION * 80e9 / 4)
+    assert chunks.budget(8.0, 4) == 2 * 10**9
 
 
 def test_an_accelerator_has_no_speed_cap_and_budgets_the_devices_memory(one_gpu):
@@ -65,29 +77,45 @@ def test_a_worker_is_pinned_to_its_own_device(monkeypatch):
     assert os.environ["CUDA_VISIBLE_DEVICES"] == "2"
 
 
-def test_a_platform_that_cannot_pin_a_device_runs_one_worker(monkeypatch):
-    """Four TPU chips: each worker process would open every chip, so one runs."""
+def test_a_platform_that_cannot_pin_a_device_runs_threads_in_one_process(monkeypatch):
+    """Four TPU chips: each worker process would open every chip, so the workers are threads
+    of one process."""
     monkeypatch.setattr(backend, "accelerator", lambda: True)
     monkeypatch.setattr(backend, "name", lambda: "tpu")
     monkeypatch.setattr(backend, "device_count", lambda: 4)
-    lines = []
-    assert backend.worker_devices() == 1 and backend.fold_workers(4, lines.append) == 1
-    assert lines == [
-        "--workers 4: 4 tpu devices; running 1 worker process (processes sharing a device "
-        "time-slice it)"
-    ]
+    assert backend.worker_devices() == 1 and backend.shared_device()
+    assert backend.fold_workers(4) == 4
 
 
-def test_a_run_on_an_accelerator_runs_one_process_per_device(one_gpu, tmp_path, monkeypatch):
-    """--workers 2 on one GPU: one line, and the cells run in this process (no pool)."""
-    from loopid.experiments import executors
+def test_a_run_on_one_gpu_runs_its_workers_as_threads(one_gpu, tmp_path, monkeypatch):
+    """--workers 2 on one GPU: no worker process; two threads of this process compute the
+    cells, and the table equals one computed in order. The XLA work here runs on the CPU, whose
+    client can deadlock under concurrent executions (executors' docstring), so the threads take
+    turns through a lock: this test checks where cells run and what is saved, not concurrency
+    (on a GPU, benchmarks/device.sh compares a run's table with --workers 1's)."""
+    import concurrent.futures
+    import threading
 
-    def no_pool(*args, **kwargs):
-        raise AssertionError("a worker pool was started on one device")
+    from loopid.experiments import execute
 
-    monkeypatch.setattr(executors, "_run_pool", no_pool)
+    def no_processes(*args, **kwargs):
+        raise AssertionError("a worker process was started on one device")
+
+    threads, one_at_a_time = set(), threading.Lock()
+
+    def recorded(*args, run_chunk=execute.run_chunk, **kwargs):
+        threads.add(threading.current_thread())
+        with one_at_a_time:
+            return run_chunk(*args, **kwargs)
+
+    monkeypatch.setattr(concurrent.futures, "ProcessPoolExecutor", no_processes)
+    monkeypatch.setattr(execute, "run_chunk", recorded)
     s = MDP_SCENARIOS["mdp-trap"].replace(seeds=3, iterations=3)
+    methods = ["dagger", "batch"]
     lines = []
-    table = run_cells(tmp_path / "run", [s], ["dagger"], workers=2, log=lines.append)
-    assert table.num_rows == 3 * 3
-    assert lines[0].startswith("--workers 2: 1 gpu device; running 1 worker process")
+    table = run_cells(tmp_path / "run", [s], methods, workers=2, log=lines.append)
+    assert threading.main_thread() not in threads and len(threads) == 2
+    assert not any(line.startswith("--workers") for line in lines)  # nothing folded
+    threads.clear()
+    assert table.equals(run_cells(tmp_path / "one", [s], methods, workers=1))
+    assert threads == {threading.main_thread()}

@@ -1,4 +1,5 @@
-"""The local executor's worker processes: order, progress, results, failures (no JAX work).
+"""The local executor's worker processes and threads: order, progress, results, failures (no JAX
+work).
 
 The cell function here stands in for :func:`loopid.experiments.execute.run_cell`: it reports
 every iteration and returns a small table, so the pool's mechanics are tested in seconds; the
@@ -52,7 +53,8 @@ def test_check_workers_names_the_bad_value(bad):
         check_workers(bad)
 
 
-def test_workers_compute_every_cell_once_with_its_progress():
+@pytest.mark.parametrize("threads", [False, True])
+def test_workers_compute_every_cell_once_with_its_progress(threads):
     js = jobs()
     seen: dict = {}
 
@@ -62,7 +64,7 @@ def test_workers_compute_every_cell_once_with_its_progress():
         seen[(name, method)] = []
         return lambda n, row: seen[(name, method)].append((n, int(row["n"])))
 
-    done = list(run_local(js, fake_cell, on_job=on_job, workers=2))
+    done = list(run_local(js, fake_cell, on_job=on_job, workers=2, threads=threads))
 
     def key(j):
         return (j.scenario.name, j.method)
@@ -74,6 +76,9 @@ def test_workers_compute_every_cell_once_with_its_progress():
         # every iteration's progress arrived before the cell was handed over, in order
         assert seen[(job.scenario.name, job.method)] == [(n, n) for n in (1, 2, 3)]
     pids = {table.column("pid")[0].as_py() for _, table in done}
+    if threads:
+        assert pids == {os.getpid()}
+        return
     assert os.getpid() not in pids and 1 <= len(pids) <= 2
     if hasattr(os, "sched_getaffinity") and len(os.sched_getaffinity(0)) >= 2:
         # each worker ran on its own cores: the processes' core sets are disjoint
@@ -104,10 +109,33 @@ def test_one_worker_runs_in_this_process():
     assert [t.column("pid")[0].as_py() for _, t in done] == [os.getpid()] * 3
 
 
-def test_a_failing_cell_raises_in_the_caller():
+@pytest.mark.parametrize("threads", [False, True])
+def test_a_failing_cell_raises_in_the_caller(threads):
     js = jobs(methods=("a", "boom"), iterations=1)
     with pytest.raises(RuntimeError, match="boom"):
-        list(run_local(js, fake_cell, workers=2))
+        list(run_local(js, fake_cell, workers=2, threads=threads))
+
+
+def test_threads_start_no_cell_after_the_run_is_closed():
+    """A run stopped after its first cell (an interrupt, a failure) cancels the cells not
+    started: the two threads finish the ones they hold, and start nothing more."""
+    import threading
+    import time
+
+    started = []
+    lock = threading.Lock()
+
+    def slow_cell(s, method, seeds, progress=None):
+        with lock:
+            started.append((s.name, method))
+        time.sleep(0.2)
+        return method
+
+    run = run_local(jobs(), slow_cell, workers=2, threads=True)
+    next(run)
+    run.close()
+    time.sleep(0.6)
+    assert 2 <= len(started) <= 4 < len(jobs()), started
 
 
 def test_default_workers_is_one_per_cpu_up_to_the_cap(monkeypatch):

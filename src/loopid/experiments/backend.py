@@ -9,7 +9,11 @@ The two want different executors:
   core's cache); the memory budget is the host's.
 - **Accelerator.** One process per device: processes sharing one device time-slice it (measured
   on one H200: a hover cell 37-66 s with four worker processes against 6.6 s alone), so more
-  workers than devices are folded to one per device, with one line saying so. Width is nearly
+  workers than devices are folded to one per device, with one line saying so. Where a process
+  can use one device only (:func:`shared_device`: one GPU, or a platform whose processes
+  cannot be pinned to a device), the workers are threads of this process instead, sharing the
+  device: each compiles its cells' programs (most of a cold run on a GPU) while the others
+  compute (:mod:`loopid.experiments.executors`). Width is nearly
   free on a device, so a chunk holds as many seeds as its memory allows (no speed cap), and the
   budget is the device's own memory (:func:`device_bytes`), not the host's. Each worker process
   sees only its own device, and no process preallocates most of a device's memory
@@ -77,10 +81,17 @@ def worker_devices() -> int:
     return device_count() if name() in VISIBLE_DEVICES else 1
 
 
+def shared_device() -> bool:
+    """Whether a run's workers are threads of this process sharing its device: on an
+    accelerator where one worker process is all it can take (:func:`worker_devices`)."""
+    return accelerator() and worker_devices() == 1
+
+
 def fold_workers(workers: int, log=None) -> int:
-    """``workers`` on a CPU; on an accelerator at most one per device
-    (:func:`worker_devices`), saying so in one line through ``log`` when it folds."""
-    if not accelerator() or workers <= worker_devices():
+    """``workers`` on a CPU or a :func:`shared_device` (threads); on other accelerators at most
+    one process per device (:func:`worker_devices`), saying so in one line through ``log`` when
+    it folds."""
+    if not accelerator() or shared_device() or workers <= worker_devices():
         return workers
     devices, count = worker_devices(), device_count()
     if log is not None:

@@ -136,13 +136,15 @@ def check_memory(gb) -> float | None:
 def budget(gb: float | None, processes: int = 1) -> int:
     """Bytes one process's chunk may use: ``gb`` (all processes together) or the default
     (module docstring), shared equally by ``processes``; on an accelerator the default is
-    :data:`~loopid.experiments.backend.DEVICE_FRACTION` of one device's memory."""
+    :data:`~loopid.experiments.backend.DEVICE_FRACTION` of one device's memory, shared equally
+    by the ``processes`` (threads) computing on it where they share one device."""
     gb = check_memory(gb)
     if gb is not None:
         return int(gb * GB / processes)
     device = backend.device_bytes()
     if device is not None:  # an accelerator: each process owns one device and its memory
-        return int(backend.DEVICE_FRACTION * device)
+        sharing = processes if backend.shared_device() else 1
+        return int(backend.DEVICE_FRACTION * device / sharing)
     return int(max(DEFAULT_FRACTION * available_bytes() - processes * PROCESS_BYTES, 0) / processes)
 
 

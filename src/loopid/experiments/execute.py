@@ -222,10 +222,11 @@ def run_cells(
     seeds = check_cells(scenarios, methods, seeds)
     check_executor(executor_name, ray_address)
     chunks.check_memory(memory)
-    if executor_name == "local":  # on an accelerator, one process per device
+    threads = executor_name == "local" and backend.shared_device()  # workers share the device
+    if executor_name == "local":  # on other accelerators, one process per device
         workers = backend.fold_workers(check_workers(workers), log)
-    options = {"workers": workers} if executor_name == "local" else {}
-    if executor_name == "local" and workers > 1:
+    options = {"workers": workers, "threads": threads} if executor_name == "local" else {}
+    if executor_name == "local" and workers > 1 and not threads:
         chunks.check_processes(workers)
     check_writable(out)
     if executor_name == "ray":

@@ -12,10 +12,14 @@ rounding).
   do not take turns with another's (the funnel's policy gradient on 2 cores, two workers: 47 s
   pinned, 52 s not). Each process's BLAS runs on one thread (:mod:`loopid`): with a BLAS thread
   pool per process, whose threads spin while they wait, two workers on two cores slowed each
-  other down 4-5x (the same cell: 150 s). On an accelerator, one worker per device
-  (:mod:`loopid.experiments.backend`).
-  (Cells on several threads of one process were tried and dropped: concurrent executions on
-  XLA's CPU client deadlock when its thread pool is as small as the machine's two cores.)
+  other down 4-5x (the same cell: 150 s). On an accelerator, one worker process per device
+  (:mod:`loopid.experiments.backend`); where this process holds the only device, the workers
+  are threads of this process (``threads=True``): they share its device, its compiled
+  programs and its memory, and each compiles its cells' programs while the others compute
+  (XLA compiles outside Python's lock), where worker processes would time-slice the device.
+  (A CPU keeps processes: concurrent executions on XLA's CPU client deadlock when its thread
+  pool is as small as the machine's two cores; four threads on two cores hung with every one
+  waiting inside the client's ``Execute``.)
 - ``ray`` (extra ``[ray]``): each cell is one Ray task (``num_cpus=1``, and ``num_gpus=1`` on a
   cluster with GPUs) calling the same cell function; ``address`` joins an existing cluster,
   otherwise a local Ray is started with the machine's CPUs and shut down afterwards. Workers use
@@ -34,6 +38,7 @@ import queue
 import threading
 import time
 from collections.abc import Callable, Iterator, Sequence
+from concurrent.futures import Future
 from contextlib import contextmanager, nullcontext
 from pathlib import Path
 from typing import Any, NamedTuple
@@ -123,11 +128,12 @@ MAX_DEFAULT_WORKERS = 4
 
 def default_workers() -> int:
     """The local executor's default worker count on the command line: one per CPU, at most
-    :data:`MAX_DEFAULT_WORKERS`; on an accelerator one per device
-    (:mod:`loopid.experiments.backend`)."""
+    :data:`MAX_DEFAULT_WORKERS`; on an accelerator one per device, or, where one device is all a
+    process can use, :data:`MAX_DEFAULT_WORKERS` threads sharing it
+    (:func:`loopid.experiments.backend.shared_device`)."""
     from loopid.experiments import backend
 
-    if backend.accelerator():
+    if backend.accelerator() and not backend.shared_device():
         return backend.worker_devices()
     return max(1, min(os.cpu_count() or 1, MAX_DEFAULT_WORKERS))
 
@@ -138,16 +144,18 @@ def run_local(
     *,
     on_job: Callable | None = None,
     workers: int = 1,
+    threads: bool = False,
 ) -> Iterator[tuple[Job, Any]]:
     """Compute the jobs on this machine; ``on_job(job)`` returns a per-iteration progress
     callback (or None), called when the job starts.
 
     ``workers = 1``: in this process, in order. ``workers > 1``: in that many spawned worker
     processes (at most one per job), yielding jobs as they finish; ``cell`` must then be a
-    module-level function (it is pickled by name)."""
+    module-level function (it is pickled by name). ``threads``: the workers are threads of this
+    process instead (for an accelerator this process holds alone; module docstring)."""
     workers = min(check_workers(workers), max(len(jobs), 1))
     if workers > 1:
-        yield from _run_pool(jobs, cell, on_job, workers)
+        yield from _run_pool(jobs, cell, on_job, workers, threads)
         return
     for job in jobs:
         progress = on_job(job) if on_job else None
@@ -208,8 +216,9 @@ def _init_worker(
     threading.Thread(target=watch, daemon=True).start()
 
 
-def _pool_cell(cell: CellFunction, index: int, s, method: str, seeds):
-    """One cell in a worker; progress goes back to the parent as ``(index, n, row)``, with
+def _pool_cell(cell: CellFunction, index: int, s, method: str, seeds, messages=None):
+    """One cell in a worker (a process, or a thread whose ``messages`` queue is given); progress
+    goes back to the parent as ``(index, n, row)``, with
     ``n = 0`` (no row) when the cell starts and ``n = -1`` (no row) when it has returned, so
     the parent waits for nothing more of it (a task may return before its last iteration: a
     memory check that sends it back, :class:`loopid.experiments.execute.Oversized`).
@@ -217,7 +226,7 @@ def _pool_cell(cell: CellFunction, index: int, s, method: str, seeds):
     The rows are copied to NumPy and sent by a thread of the worker, in order, so the cell's
     loop dispatches its next iteration without waiting for the last one's numbers (on an
     accelerator, a copy to the host waits for the device)."""
-    messages = _WORKER.get("messages")
+    messages = messages if messages is not None else _WORKER.get("messages")
     if messages is None:
         return cell(s, method, seeds)
     rows = _RowSender(messages, index)
@@ -256,14 +265,52 @@ class _RowSender:
             self.messages.put((self.index, n, jax.tree_util.tree_map(np.asarray, row)))
 
 
-def _run_pool(jobs, cell, on_job, workers) -> Iterator[tuple[Job, Any]]:
+class _DaemonThreads:
+    """The part of ``concurrent.futures.ThreadPoolExecutor`` :func:`_run_pool` uses, on daemon
+    threads: an interrupted run exits at once, where ``ThreadPoolExecutor`` joins its threads
+    at exit, so a Ctrl-C would wait for the running cells, whose results nobody saves."""
+
+    def __init__(self, workers: int):
+        self.tasks: queue.SimpleQueue = queue.SimpleQueue()
+        self.threads = [threading.Thread(target=self._work, daemon=True) for _ in range(workers)]
+        for thread in self.threads:
+            thread.start()
+
+    def submit(self, fn: Callable, *args) -> Future:
+        future: Future = Future()
+        self.tasks.put((future, fn, args))
+        return future
+
+    def _work(self) -> None:
+        while (task := self.tasks.get()) is not None:
+            future, fn, args = task
+            if future.set_running_or_notify_cancel():
+                try:
+                    future.set_result(fn(*args))
+                except BaseException as e:
+                    future.set_exception(e)
+
+    def shutdown(self, wait: bool = False, cancel_futures: bool = True) -> None:
+        """Cancel the tasks not started and let each thread end after its current one."""
+        while True:
+            try:
+                task = self.tasks.get_nowait()
+            except queue.Empty:
+                break
+            if task is not None and cancel_futures:
+                task[0].cancel()
+        for _ in self.threads:
+            self.tasks.put(None)
+
+
+def _run_pool(jobs, cell, on_job, workers, threads=False) -> Iterator[tuple[Job, Any]]:
     import multiprocessing
     from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
 
     import jax
 
     ctx = multiprocessing.get_context("spawn")  # never fork a process that runs XLA threads
-    messages = ctx.Queue() if on_job else None
+    messages = (queue.Queue() if threads else ctx.Queue()) if on_job else None
     cache_dir = jax.config.jax_compilation_cache_dir or compile_cache()
     callbacks: dict[int, Callable | None] = {}
     seen: dict[int, int] = {}  # the last iteration reported per job
@@ -289,7 +336,9 @@ def _run_pool(jobs, cell, on_job, workers) -> Iterator[tuple[Job, Any]]:
     from loopid.experiments import backend
 
     devices = cores = None
-    if backend.accelerator():  # one device each
+    if threads:
+        pool = _DaemonThreads(workers)
+    elif backend.accelerator():  # one device each
         devices = ctx.Queue()
         for index in range(workers):
             devices.put(index)
@@ -297,13 +346,17 @@ def _run_pool(jobs, cell, on_job, workers) -> Iterator[tuple[Job, Any]]:
         cores = ctx.Queue()
         for share in shares:
             cores.put(share)
-    pool = ProcessPoolExecutor(
-        workers, mp_context=ctx, initializer=_init_worker,
-        initargs=(cache_dir, messages, os.getpid(), devices, backend.name(), cores),
-    )  # fmt: skip
+    if not threads:
+        pool = ProcessPoolExecutor(
+            workers, mp_context=ctx, initializer=_init_worker,
+            initargs=(cache_dir, messages, os.getpid(), devices, backend.name(), cores),
+        )  # fmt: skip
+    extra = (messages,) if threads else ()  # a worker process has its own (_init_worker)
     try:
         futures = {
-            pool.submit(_pool_cell, cell, i, jobs[i].scenario, jobs[i].method, jobs[i].seeds): i
+            pool.submit(
+                _pool_cell, cell, i, jobs[i].scenario, jobs[i].method, jobs[i].seeds, *extra
+            ): i
             for i in spread(jobs)
         }
         pending = set(futures)
