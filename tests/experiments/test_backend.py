@@ -119,3 +119,31 @@ def test_a_run_on_one_gpu_runs_its_workers_as_threads(one_gpu, tmp_path, monkeyp
     threads.clear()
     assert table.equals(run_cells(tmp_path / "one", [s], methods, workers=1))
     assert threads == {threading.main_thread()}
+
+
+@pytest.mark.parametrize(
+    ("given", "expected"),
+    [
+        (None, "--xla_gpu_deterministic_ops=true"),
+        (
+            "--xla_force_host_platform_device_count=1",
+            "--xla_force_host_platform_device_count=1 --xla_gpu_deterministic_ops=true",
+        ),
+        ("--xla_gpu_deterministic_ops=false", "--xla_gpu_deterministic_ops=false"),
+    ],
+)
+def test_import_makes_gpu_programs_deterministic_unless_the_user_chose(given, expected):
+    """A GPU's table is the same from run to run and with any workers only with deterministic
+    ops (package docstring); importing loopid adds the flag before JAX starts a backend, keeps
+    the user's other flags, and keeps a choice the user made."""
+    import subprocess
+    import sys
+
+    env = {k: v for k, v in os.environ.items() if k != "XLA_FLAGS"}
+    if given is not None:
+        env["XLA_FLAGS"] = given
+    code = "import os, loopid, jax; jax.numpy.ones(1).block_until_ready()\n"
+    code += "print(os.environ['XLA_FLAGS'])"
+    out = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True)
+    assert out.returncode == 0, out.stderr
+    assert out.stdout.strip() == expected
