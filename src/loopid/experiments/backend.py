@@ -19,8 +19,10 @@ The two want different executors:
   sees only its own device, and no process preallocates most of a device's memory
   (``XLA_PYTHON_CLIENT_PREALLOCATE=false``, set by ``import loopid`` before JAX starts).
 
-The same seeds give the same table on one backend whatever the executor, workers or chunks; a
-table computed on an accelerator may differ from a CPU's in the last bits (another compiler and
+The same seeds give the same table on one backend whatever the executor, workers or chunks (on
+a GPU because ``import loopid`` asks XLA for deterministic ops: with its default flags a GPU
+program's rounding can change between compilations); a table computed on an accelerator may
+differ from a CPU's in the last bits (another compiler and
 other math libraries), and where a rounding difference is amplified (a cost near the cap, a
 diverging trajectory) by more.
 """
