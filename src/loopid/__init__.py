@@ -15,6 +15,7 @@ on one thread, and registers the helicopter tasks as Gymnasium environments
 """
 
 import os
+import re
 from importlib.metadata import PackageNotFoundError, version
 
 # On a GPU no process takes most of the device's memory up front: loopid's worker processes
@@ -25,11 +26,12 @@ os.environ.setdefault("XLA_PYTHON_CLIENT_PREALLOCATE", "false")
 # On a GPU the same seeds give the same table from run to run, with any number of workers: XLA's
 # default lets a GPU program's rounding vary between compilations (measured on one H200: two
 # cold runs of the same hover cells differed in 5 of 72 rows, by 2e-16 at first, which a chaotic
-# test trajectory can amplify to 1 %). Deterministic ops made runs with one and with four workers
-# bit for bit equal, for 4 % more time. No effect on a CPU; a setting the user chose is kept.
-if "xla_gpu_deterministic_ops" not in os.environ.get("XLA_FLAGS", ""):
+# test trajectory can amplify to 0.7 %). Deterministic ops made runs with one and with four
+# workers bit for bit equal, for 4 % more time. No effect on a CPU's numbers; a setting the user
+# chose is kept. (XLA_FLAGS is part of JAX's compilation cache key.)
+if not re.search(r"(^|\s)--xla_gpu_deterministic_ops(=|\s|$)", os.environ.get("XLA_FLAGS", "")):
     os.environ["XLA_FLAGS"] = " ".join(
-        filter(None, [os.environ.get("XLA_FLAGS", ""), "--xla_gpu_deterministic_ops=true"])
+        filter(None, [os.environ.get("XLA_FLAGS", "").strip(), "--xla_gpu_deterministic_ops=true"])
     )
 
 import jax

@@ -25,6 +25,7 @@ def one_gpu(monkeypatch):
 @pytest.mark.skipif(backend.accelerator(), reason="a CPU's facts; the next test checks a device")
 def test_the_cpu_keeps_its_workers_cap_and_budget():
     assert backend.describe() == "cpu" and backend.device_bytes() is None
+    assert not backend.shared_device()  # never threads on a CPU (executors' docstring)
     assert backend.fold_workers(4) == 4
     assert chunks.speed_seeds(40) == chunks.SPEED_SEEDS == 12 and chunks.speed_seeds(5) == 5
     assert chunks.budget(2.0, 2) == 10**9
@@ -42,8 +43,11 @@ def test_a_real_accelerator_is_described_folded_and_budgeted_by_its_own_memory()
 
 
 def test_several_gpus_fold_workers_to_one_process_per_device_in_one_line(one_gpu, monkeypatch):
+    from loopid.experiments import executors
+
     monkeypatch.setattr(backend, "device_count", lambda: 2)
     lines = []
+    assert executors.default_workers() == 2
     assert not backend.shared_device() and backend.fold_workers(4, lines.append) == 2
     assert lines == [
         "--workers 4: 2 gpu devices; running 2 worker processes (processes sharing a device "
@@ -52,11 +56,16 @@ def test_several_gpus_fold_workers_to_one_process_per_device_in_one_line(one_gpu
     assert backend.fold_workers(2, lines.append) == 2 and len(lines) == 1  # nothing to fold
 
 
-def test_one_gpu_keeps_its_workers_as_threads_sharing_its_memory(one_gpu):
+def test_one_gpu_keeps_its_workers_as_threads_sharing_its_memory(one_gpu, monkeypatch):
+    from loopid.experiments import executors
+
     lines = []
     assert backend.shared_device() and backend.fold_workers(4, lines.append) == 4 and not lines
-    assert chunks.budget(None, 4) == int(backend.DEVICE_FRACTION * 80e9 / 4)
-    assert chunks.budget(8.0, 4) == 2 * 10**9
+    monkeypatch.setattr(executors.os, "cpu_count", lambda: 2)  # threads: not one per CPU
+    assert executors.default_workers() == executors.MAX_DEFAULT_WORKERS
+    assert chunks.budget(None, 4, threads=True) == int(backend.DEVICE_FRACTION * 80e9 / 4)
+    # processes (Ray's tasks, several GPUs) each own a device: no sharing
+    assert chunks.budget(None, 4) == int(backend.DEVICE_FRACTION * 80e9)
 
 
 def test_an_accelerator_has_no_speed_cap_and_budgets_the_devices_memory(one_gpu):
@@ -84,7 +93,12 @@ def test_a_platform_that_cannot_pin_a_device_runs_threads_in_one_process(monkeyp
     monkeypatch.setattr(backend, "name", lambda: "tpu")
     monkeypatch.setattr(backend, "device_count", lambda: 4)
     assert backend.worker_devices() == 1 and backend.shared_device()
-    assert backend.fold_workers(4) == 4
+    lines = []
+    assert backend.fold_workers(4, lines.append) == 4
+    assert lines == [
+        "4 tpu devices, but a process cannot be given one of them here: running 4 worker "
+        "threads on the first"
+    ]
 
 
 def test_a_run_on_one_gpu_runs_its_workers_as_threads(one_gpu, tmp_path, monkeypatch):
@@ -96,6 +110,8 @@ def test_a_run_on_one_gpu_runs_its_workers_as_threads(one_gpu, tmp_path, monkeyp
     import concurrent.futures
     import threading
 
+    import jax
+
     from loopid.experiments import execute
 
     def no_processes(*args, **kwargs):
@@ -105,8 +121,8 @@ def test_a_run_on_one_gpu_runs_its_workers_as_threads(one_gpu, tmp_path, monkeyp
 
     def recorded(*args, run_chunk=execute.run_chunk, **kwargs):
         threads.add(threading.current_thread())
-        with one_at_a_time:
-            return run_chunk(*args, **kwargs)
+        with one_at_a_time:  # and nothing left in flight when the next takes its turn
+            return jax.block_until_ready(run_chunk(*args, **kwargs))
 
     monkeypatch.setattr(concurrent.futures, "ProcessPoolExecutor", no_processes)
     monkeypatch.setattr(execute, "run_chunk", recorded)

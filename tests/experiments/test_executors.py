@@ -116,26 +116,37 @@ def test_a_failing_cell_raises_in_the_caller(threads):
         list(run_local(js, fake_cell, workers=2, threads=threads))
 
 
-def test_threads_start_no_cell_after_the_run_is_closed():
-    """A run stopped after its first cell (an interrupt, a failure) cancels the cells not
-    started: the two threads finish the ones they hold, and start nothing more."""
+def test_threads_stop_their_cells_when_the_run_stops():
+    """A run stopped after its first cell (an interrupt, a failure, a closed generator): the
+    cells not started never start, and the running one stops at its next iteration, before
+    ``close`` returns, so nothing goes on computing (on the device) after the run."""
     import threading
-    import time
 
-    started = []
-    lock = threading.Lock()
+    first_done, stopped, started = threading.Event(), [], []
 
-    def slow_cell(s, method, seeds, progress=None):
-        with lock:
-            started.append((s.name, method))
-        time.sleep(0.2)
-        return method
+    def cell(s, method, seeds, progress=None):
+        started.append(method)
+        if method == "a":  # the first cell: returns at once
+            return method
+        first_done.wait()
+        n = 0
+        try:
+            while True:  # a long cell: ends only when told to, at an iteration
+                n += 1
+                progress(n, {"n": n})
+        except BaseException:
+            stopped.append(method)
+            raise
 
-    run = run_local(jobs(), slow_cell, workers=2, threads=True)
-    next(run)
+    run = run_local(jobs(methods=("a", "b")), cell, workers=2, threads=True)
+    job, result = next(run)
+    assert job.method == result == "a"
+    first_done.set()
     run.close()
-    time.sleep(0.6)
-    assert 2 <= len(started) <= 4 < len(jobs()), started
+    count = len(started)
+    assert started.count("b") == len(stopped), (started, stopped)  # every running one stopped
+    assert not any(t.name.startswith("loopid-cell") for t in threading.enumerate())
+    assert len(started) == count < len(jobs(methods=("a", "b")))  # and none started since
 
 
 def test_default_workers_is_one_per_cpu_up_to_the_cap(monkeypatch):

@@ -92,7 +92,13 @@ def shared_device() -> bool:
 def fold_workers(workers: int, log=None) -> int:
     """``workers`` on a CPU or a :func:`shared_device` (threads); on other accelerators at most
     one process per device (:func:`worker_devices`), saying so in one line through ``log`` when
-    it folds."""
+    it folds; threads on the first of several devices (a platform whose processes cannot be
+    pinned to one) say so in one line too."""
+    if shared_device() and device_count() > 1 and log is not None:
+        log(
+            f"{device_count()} {name()} devices, but a process cannot be given one of them here: "
+            f"running {workers} worker thread{'s' if workers > 1 else ''} on the first"
+        )
     if not accelerator() or shared_device() or workers <= worker_devices():
         return workers
     devices, count = worker_devices(), device_count()

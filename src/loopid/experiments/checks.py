@@ -48,7 +48,7 @@ def check_rows(
             raise ValueError(
                 f"{s.name}: {s.iterations} iterations of {chunk} seeds a task "
                 f"keep about {chunks.size_text(need)} of rows, more than the memory budget of "
-                f"{chunks.size_text(limit)} per process; lower --iterations"
+                f"{chunks.size_text(limit)} per worker; lower --iterations"
             )
 
 

@@ -14,7 +14,8 @@ A cell runs all its seeds as one vmapped program, so its memory grows with the s
 - **Budget** (:func:`budget`): ``--memory GB`` for all the processes computing at once, else
   :data:`DEFAULT_FRACTION` of the memory this machine has available (``MemAvailable``, within a
   cgroup's limit) less :data:`PROCESS_BYTES` per process; each process gets an equal share. On
-  an accelerator the default is most of one device's memory, per process (one per device).
+  an accelerator the default is most of one device's memory, per process (one per device), or
+  shared equally by the threads of one process sharing the device.
 - **Chunks** (:func:`chunk_size`, :func:`split`): the programs' memory is affine in the seed count,
   ``a + b·S`` with ``a ≥ 0``, so ``b ≤ M(S)/S`` and ``c = ⌊S · budget / M(S)⌋`` seeds fit
   (S: the seed count, at most :data:`SPEED_SEEDS`, the estimate is made at). The
@@ -133,18 +134,17 @@ def check_memory(gb) -> float | None:
     return float(gb)
 
 
-def budget(gb: float | None, processes: int = 1) -> int:
+def budget(gb: float | None, processes: int = 1, *, threads: bool = False) -> int:
     """Bytes one process's chunk may use: ``gb`` (all processes together) or the default
     (module docstring), shared equally by ``processes``; on an accelerator the default is
-    :data:`~loopid.experiments.backend.DEVICE_FRACTION` of one device's memory, shared equally
-    by the ``processes`` (threads) computing on it where they share one device."""
+    :data:`~loopid.experiments.backend.DEVICE_FRACTION` of one device's memory, which each
+    process owns, or which ``processes`` workers share as ``threads`` of one process."""
     gb = check_memory(gb)
     if gb is not None:
         return int(gb * GB / processes)
     device = backend.device_bytes()
-    if device is not None:  # an accelerator: each process owns one device and its memory
-        sharing = processes if backend.shared_device() else 1
-        return int(backend.DEVICE_FRACTION * device / sharing)
+    if device is not None:  # an accelerator: its memory, shared by the threads computing on it
+        return int(backend.DEVICE_FRACTION * device / (processes if threads else 1))
     return int(max(DEFAULT_FRACTION * available_bytes() - processes * PROCESS_BYTES, 0) / processes)
 
 
@@ -189,7 +189,7 @@ def chunk_size(estimate: int, seeds: int, limit: int, where: str) -> int:
             f"{where}: a chunk of {MIN_CHUNK} seeds needs about "
             f"{size_text(MIN_CHUNK * estimate / seeds)} (estimated for {seeds} seeds: "
             f"{size_text(estimate)}), more than the memory budget of {size_text(limit)} per "
-            "process; raise --memory or use fewer --workers"
+            "worker; raise --memory or use fewer --workers"
         )
     return c
 

@@ -8,8 +8,9 @@ directory already there holds the same configuration), then:
 1. splits each unfinished cell's missing seeds into tasks (:mod:`loopid.experiments.tasks`:
    one method's, or a lane set's methods'), in chunks of at most
    :data:`~loopid.experiments.chunks.SPEED_SEEDS` on a CPU (families with a memory estimate;
-   :mod:`loopid.experiments.chunks`; on an accelerator, one process per device and chunks as
-   large as its memory allows: :mod:`loopid.experiments.backend`);
+   :mod:`loopid.experiments.chunks`; on an accelerator, one process per device, or threads
+   sharing one device, and chunks as large as its memory allows:
+   :mod:`loopid.experiments.backend`);
 2. hands the tasks (whole cells and chunks) to an executor
    (:mod:`loopid.experiments.executors`). A task first compiles its programs and reads their
    memory from them (the family's ``memory``); one that needs more than its process's share of
@@ -252,7 +253,8 @@ def run_cells(
             else:
                 todo.append((s, m))
     processes = options.get("workers", 1) if executor_name == "local" else (os.cpu_count() or 1)
-    limit = chunks.budget(memory, processes)  # each process computing at once gets its share
+    # each process (or thread) computing at once gets its share
+    limit = chunks.budget(memory, processes, threads=threads)
     if lanes is None:
         lanes = backend.accelerator()
     groups = lane_sets(family, todo) if lanes and family.run_lanes is not None else None

@@ -14,12 +14,14 @@ rounding).
   pool per process, whose threads spin while they wait, two workers on two cores slowed each
   other down 4-5x (the same cell: 150 s). On an accelerator, one worker process per device
   (:mod:`loopid.experiments.backend`); where this process holds the only device, the workers
-  are threads of this process (``threads=True``): they share its device, its compiled
-  programs and its memory, and each compiles its cells' programs while the others compute
-  (XLA compiles outside Python's lock), where worker processes would time-slice the device.
+  are threads of this process (``threads=True``, :mod:`loopid.experiments.threads`): they
+  share its device, its compiled programs and its memory, and each compiles its cells'
+  programs while the others compute (XLA compiles outside Python's lock), where worker
+  processes would time-slice the device.
   (A CPU keeps processes: concurrent executions on XLA's CPU client deadlock when its thread
-  pool is as small as the machine's two cores; four threads on two cores hung with every one
-  waiting inside the client's ``Execute``.)
+  pool is as small as the machine's two cores. Four threads on two cores hung with both pool
+  threads inside jaxlib's batched LAPACK kernels (Cholesky, triangular solve), each waiting
+  for work it had queued on the same, full pool.)
 - ``ray`` (extra ``[ray]``): each cell is one Ray task (``num_cpus=1``, and ``num_gpus=1`` on a
   cluster with GPUs) calling the same cell function; ``address`` joins an existing cluster,
   otherwise a local Ray is started with the machine's CPUs and shut down afterwards. Workers use
@@ -38,10 +40,11 @@ import queue
 import threading
 import time
 from collections.abc import Callable, Iterator, Sequence
-from concurrent.futures import Future
 from contextlib import contextmanager, nullcontext
 from pathlib import Path
 from typing import Any, NamedTuple
+
+from loopid.experiments.threads import DaemonThreads, stoppable
 
 EXECUTORS = ("local", "ray")
 
@@ -133,7 +136,9 @@ def default_workers() -> int:
     (:func:`loopid.experiments.backend.shared_device`)."""
     from loopid.experiments import backend
 
-    if backend.accelerator() and not backend.shared_device():
+    if backend.shared_device():  # threads: each mostly waits for the device or the compiler
+        return MAX_DEFAULT_WORKERS
+    if backend.accelerator():
         return backend.worker_devices()
     return max(1, min(os.cpu_count() or 1, MAX_DEFAULT_WORKERS))
 
@@ -152,7 +157,8 @@ def run_local(
     ``workers = 1``: in this process, in order. ``workers > 1``: in that many spawned worker
     processes (at most one per job), yielding jobs as they finish; ``cell`` must then be a
     module-level function (it is pickled by name). ``threads``: the workers are threads of this
-    process instead (for an accelerator this process holds alone; module docstring)."""
+    process instead, for an accelerator this process holds alone; never on a CPU, whose XLA
+    client can deadlock under concurrent executions (module docstring)."""
     workers = min(check_workers(workers), max(len(jobs), 1))
     if workers > 1:
         yield from _run_pool(jobs, cell, on_job, workers, threads)
@@ -216,9 +222,11 @@ def _init_worker(
     threading.Thread(target=watch, daemon=True).start()
 
 
-def _pool_cell(cell: CellFunction, index: int, s, method: str, seeds, messages=None):
-    """One cell in a worker (a process, or a thread whose ``messages`` queue is given); progress
-    goes back to the parent as ``(index, n, row)``, with
+def _pool_cell(cell: CellFunction, index: int, s, method: str, seeds, messages=None, stop=None):
+    """One cell in a worker: a process, or a thread given its ``messages`` queue and its pool's
+    ``stop`` event (the cell then ends at its next iteration once the event is set:
+    :mod:`loopid.experiments.threads`). Progress goes back to the parent as ``(index, n, row)``,
+    with
     ``n = 0`` (no row) when the cell starts and ``n = -1`` (no row) when it has returned, so
     the parent waits for nothing more of it (a task may return before its last iteration: a
     memory check that sends it back, :class:`loopid.experiments.execute.Oversized`).
@@ -228,11 +236,13 @@ def _pool_cell(cell: CellFunction, index: int, s, method: str, seeds, messages=N
     accelerator, a copy to the host waits for the device)."""
     messages = messages if messages is not None else _WORKER.get("messages")
     if messages is None:
-        return cell(s, method, seeds)
+        progress = None if stop is None else stoppable(None, stop)
+        return cell(s, method, seeds, progress=progress)
     rows = _RowSender(messages, index)
     messages.put((index, 0, None))  # started: the parent shows its bar from now on
     try:
-        result = cell(s, method, seeds, progress=rows.put)
+        progress = rows.put if stop is None else stoppable(rows.put, stop)
+        result = cell(s, method, seeds, progress=progress)
     finally:
         rows.close()  # every row of this cell is sent
     messages.put((index, -1, None))  # returned: after every progress message of this cell
@@ -263,44 +273,6 @@ class _RowSender:
         while (item := self.pending.get()) is not None:
             n, row = item
             self.messages.put((self.index, n, jax.tree_util.tree_map(np.asarray, row)))
-
-
-class _DaemonThreads:
-    """The part of ``concurrent.futures.ThreadPoolExecutor`` :func:`_run_pool` uses, on daemon
-    threads: an interrupted run exits at once, where ``ThreadPoolExecutor`` joins its threads
-    at exit, so a Ctrl-C would wait for the running cells, whose results nobody saves."""
-
-    def __init__(self, workers: int):
-        self.tasks: queue.SimpleQueue = queue.SimpleQueue()
-        self.threads = [threading.Thread(target=self._work, daemon=True) for _ in range(workers)]
-        for thread in self.threads:
-            thread.start()
-
-    def submit(self, fn: Callable, *args) -> Future:
-        future: Future = Future()
-        self.tasks.put((future, fn, args))
-        return future
-
-    def _work(self) -> None:
-        while (task := self.tasks.get()) is not None:
-            future, fn, args = task
-            if future.set_running_or_notify_cancel():
-                try:
-                    future.set_result(fn(*args))
-                except BaseException as e:
-                    future.set_exception(e)
-
-    def shutdown(self, wait: bool = False, cancel_futures: bool = True) -> None:
-        """Cancel the tasks not started and let each thread end after its current one."""
-        while True:
-            try:
-                task = self.tasks.get_nowait()
-            except queue.Empty:
-                break
-            if task is not None and cancel_futures:
-                task[0].cancel()
-        for _ in self.threads:
-            self.tasks.put(None)
 
 
 def _run_pool(jobs, cell, on_job, workers, threads=False) -> Iterator[tuple[Job, Any]]:
@@ -337,7 +309,7 @@ def _run_pool(jobs, cell, on_job, workers, threads=False) -> Iterator[tuple[Job,
 
     devices = cores = None
     if threads:
-        pool = _DaemonThreads(workers)
+        pool = DaemonThreads(workers)
     elif backend.accelerator():  # one device each
         devices = ctx.Queue()
         for index in range(workers):
@@ -351,7 +323,7 @@ def _run_pool(jobs, cell, on_job, workers, threads=False) -> Iterator[tuple[Job,
             workers, mp_context=ctx, initializer=_init_worker,
             initargs=(cache_dir, messages, os.getpid(), devices, backend.name(), cores),
         )  # fmt: skip
-    extra = (messages,) if threads else ()  # a worker process has its own (_init_worker)
+    extra = (messages, pool.stop) if threads else ()  # a process has its own (_init_worker)
     try:
         futures = {
             pool.submit(
