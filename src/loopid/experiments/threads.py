@@ -9,7 +9,7 @@ XLA's CPU client can deadlock (the executors' docstring).
 uses, written here for two reasons:
 
 - a run that stops (an interrupt, a failed cell, a caller that closes the generator) stops its
-  running cells too: each checks :attr:`DaemonThreads.stop` in its per-iteration progress
+  running cells too: each checks its pool's ``stop`` event in its per-iteration progress
   callback (:func:`stoppable`) and ends with :class:`Stopped` at its next iteration, and
   :meth:`DaemonThreads.shutdown` waits for that (at most ``timeout`` seconds: a program being
   compiled cannot be stopped), so no cell goes on computing, on the device, after the run
