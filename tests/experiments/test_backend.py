@@ -96,8 +96,8 @@ def test_a_platform_that_cannot_pin_a_device_runs_threads_in_one_process(monkeyp
     lines = []
     assert backend.fold_workers(4, lines.append) == 4
     assert lines == [
-        "4 tpu devices, but a process cannot be given one of them here: running 4 worker "
-        "threads on the first"
+        "4 tpu devices, but a process cannot be given one of them here: running the cells on "
+        "the first, 4 at a time"
     ]
 
 

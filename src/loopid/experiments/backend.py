@@ -97,7 +97,7 @@ def fold_workers(workers: int, log=None) -> int:
     if shared_device() and device_count() > 1 and log is not None:
         log(
             f"{device_count()} {name()} devices, but a process cannot be given one of them here: "
-            f"running {workers} worker thread{'s' if workers > 1 else ''} on the first"
+            f"running the cells on the first, {workers} at a time"
         )
     if not accelerator() or shared_device() or workers <= worker_devices():
         return workers

@@ -236,15 +236,16 @@ def _pool_cell(cell: CellFunction, index: int, s, method: str, seeds, messages=N
     accelerator, a copy to the host waits for the device)."""
     messages = messages if messages is not None else _WORKER.get("messages")
     if messages is None:
-        progress = None if stop is None else stoppable(None, stop)
-        return cell(s, method, seeds, progress=progress)
+        if stop is None:
+            return cell(s, method, seeds)
+        return cell(s, method, seeds, progress=stoppable(None, stop))
     rows = _RowSender(messages, index)
     messages.put((index, 0, None))  # started: the parent shows its bar from now on
     try:
         progress = rows.put if stop is None else stoppable(rows.put, stop)
         result = cell(s, method, seeds, progress=progress)
     finally:
-        rows.close()  # every row of this cell is sent
+        rows.close(drop=stop is not None and stop.is_set())  # every row sent, unless stopped
     messages.put((index, -1, None))  # returned: after every progress message of this cell
     return result
 
@@ -262,7 +263,14 @@ class _RowSender:
     def put(self, n: int, row) -> None:
         self.pending.put((n, row))
 
-    def close(self) -> None:
+    def close(self, drop: bool = False) -> None:
+        """Send every row put so far (with ``drop``: none not yet being sent, whose copies would
+        wait for the device to compute them) and end the thread."""
+        while drop:
+            try:
+                self.pending.get_nowait()
+            except queue.Empty:
+                break
         self.pending.put(None)
         self.thread.join()
 

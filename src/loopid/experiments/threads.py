@@ -13,7 +13,9 @@ uses, written here for two reasons:
   callback (:func:`stoppable`) and ends with :class:`Stopped` at its next iteration, and
   :meth:`DaemonThreads.shutdown` waits for that (at most ``timeout`` seconds: a program being
   compiled cannot be stopped), so no cell goes on computing, on the device, after the run
-  returned or the interpreter began to exit;
+  returned or the interpreter began to exit. A cell's loop dispatches its iterations without
+  waiting for their results; the callback lets it run at most :data:`AHEAD` iterations ahead of
+  the device, so that a stop is not kept waiting behind a queue of iterations already sent;
 - its threads are daemons, so a thread still compiling when that wait ends does not hold up
   the process's exit (``ThreadPoolExecutor`` joins its threads at exit).
 """
@@ -21,8 +23,13 @@ uses, written here for two reasons:
 import queue
 import threading
 import time
+from collections import deque
 from collections.abc import Callable
 from concurrent.futures import Future
+
+#: How many iterations a cell on a thread may dispatch beyond the last one the device finished
+#: (:func:`stoppable`): enough to keep the device busy while the host dispatches the next.
+AHEAD = 2
 
 
 class Stopped(Exception):
@@ -44,6 +51,8 @@ class DaemonThreads:
 
     def submit(self, fn: Callable, *args) -> Future:
         """Run ``fn(*args)`` on the next free thread; its future holds the result."""
+        if self.stop.is_set():
+            raise RuntimeError("submit after shutdown")
         future: Future = Future()
         self.tasks.put((future, fn, args))
         return future
@@ -73,17 +82,27 @@ class DaemonThreads:
             self.tasks.put(None)
         deadline = time.monotonic() + timeout
         for thread in self.threads:
-            thread.join(max(deadline - time.monotonic(), 0.0))
+            if thread is not threading.current_thread():
+                thread.join(max(deadline - time.monotonic(), 0.0))
 
 
 def stoppable(progress: Callable | None, stop: threading.Event) -> Callable:
     """A per-iteration progress callback that raises :class:`Stopped` once ``stop`` is set, and
-    otherwise passes ``(n, row)`` on to ``progress`` (if any)."""
+    otherwise passes ``(n, row)`` on to ``progress`` (if any); before it returns, the row of
+    iteration ``n - AHEAD`` is computed (``jax.block_until_ready``), so the cell's loop is never
+    more than :data:`AHEAD` iterations ahead of the device. Numbers are unchanged: only when
+    the host waits."""
+    import jax
+
+    sent: deque = deque()
 
     def check(n: int, row) -> None:
         if stop.is_set():
             raise Stopped(f"stopped at iteration {n}")
         if progress is not None:
             progress(n, row)
+        sent.append(row)
+        if len(sent) > AHEAD:
+            jax.block_until_ready(sent.popleft())
 
     return check
