@@ -283,15 +283,42 @@ class _RowSender:
             self.messages.put((self.index, n, jax.tree_util.tree_map(np.asarray, row)))
 
 
-def _run_pool(jobs, cell, on_job, workers, threads=False) -> Iterator[tuple[Job, Any]]:
+def _process_pool(workers: int, messages):
+    """``workers`` spawned worker processes (:func:`_init_worker`), each on its own device on an
+    accelerator, or on its own cores on a CPU (module docstring), sharing this process's
+    compilation cache and sending progress to ``messages``."""
     import multiprocessing
-    from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
+    from concurrent.futures import ProcessPoolExecutor
 
     import jax
 
+    from loopid.experiments import backend
+
     ctx = multiprocessing.get_context("spawn")  # never fork a process that runs XLA threads
-    messages = (queue.Queue() if threads else ctx.Queue()) if on_job else None
     cache_dir = jax.config.jax_compilation_cache_dir or compile_cache()
+    devices = cores = None
+    if backend.accelerator():  # one device each
+        devices = ctx.Queue()
+        for index in range(workers):
+            devices.put(index)
+    elif shares := core_shares(workers):  # cores of its own each (module docstring)
+        cores = ctx.Queue()
+        for share in shares:
+            cores.put(share)
+    return ProcessPoolExecutor(
+        workers, mp_context=ctx, initializer=_init_worker,
+        initargs=(cache_dir, messages, os.getpid(), devices, backend.name(), cores),
+    )  # fmt: skip
+
+
+def _run_pool(jobs, cell, on_job, workers, threads=False) -> Iterator[tuple[Job, Any]]:
+    import multiprocessing
+    from concurrent.futures import FIRST_COMPLETED, wait
+
+    if on_job is None:
+        messages = None
+    else:  # a queue worker processes can write to, or this process's own for threads
+        messages = queue.Queue() if threads else multiprocessing.get_context("spawn").Queue()
     callbacks: dict[int, Callable | None] = {}
     seen: dict[int, int] = {}  # the last iteration reported per job
 
@@ -313,24 +340,7 @@ def _run_pool(jobs, cell, on_job, workers, threads=False) -> Iterator[tuple[Job,
             except queue.Empty:
                 return
 
-    from loopid.experiments import backend
-
-    devices = cores = None
-    if threads:
-        pool = DaemonThreads(workers)
-    elif backend.accelerator():  # one device each
-        devices = ctx.Queue()
-        for index in range(workers):
-            devices.put(index)
-    elif shares := core_shares(workers):  # cores of its own each (module docstring)
-        cores = ctx.Queue()
-        for share in shares:
-            cores.put(share)
-    if not threads:
-        pool = ProcessPoolExecutor(
-            workers, mp_context=ctx, initializer=_init_worker,
-            initargs=(cache_dir, messages, os.getpid(), devices, backend.name(), cores),
-        )  # fmt: skip
+    pool = DaemonThreads(workers) if threads else _process_pool(workers, messages)
     extra = (messages, pool.stop) if threads else ()  # a process has its own (_init_worker)
     try:
         futures = {
