@@ -31,8 +31,9 @@ usual case (doubling alone reaches ~1e-15) pays nothing for them.
 
 ``converged`` is True only when the iteration met ``tol``, every number is finite, the relative
 Riccati residual is at most ``rtol_residual`` and the closed loop A - BK is Schur stable
-(spectral radius < 1). A pair that cannot be stabilised (e.g. an eigenvalue-1 mode with cost but
-no control path) returns finite K, P with ``converged = False``.
+(spectral radius < 1; :func:`loopid.control.spectral.spectral_radius`: from the eigenvalues on
+a CPU, by repeated squaring on an accelerator). A pair that cannot be stabilised (e.g. an
+eigenvalue-1 mode with cost but no control path) returns finite K, P with ``converged = False``.
 
 ``dlqr_affine`` handles loopid's error coordinates x = [z; 1] (constant last entry).
 """
@@ -55,6 +56,7 @@ from loopid.control._checks import (
     check_square,
     is_concrete,
 )
+from loopid.control.spectral import spectral_radius
 
 __all__ = ["LQRSolution", "dlqr", "dlqr_affine"]
 
@@ -255,7 +257,7 @@ def _dlqr_single(A, B, Q, R, N, max_iter, tol, rtol_residual, newton_steps=2) ->
 
     init = (P, K, residual, jnp.asarray(0, jnp.int32), jnp.asarray(True))
     P, K, residual, _, _ = jax.lax.while_loop(refine_cond, refine, init)
-    rho = jnp.max(jnp.abs(jnp.linalg.eigvals(A - B @ K)))
+    rho = spectral_radius(A - B @ K)  # the eigenvalues on a CPU, squaring on an accelerator
     rho = jnp.where(jnp.isfinite(rho), rho, jnp.inf)
     converged = met & (residual <= rtol_residual) & (rho < 1.0)
     return LQRSolution(K, P, converged, residual, rho, iterations)
