@@ -142,20 +142,22 @@ def _workers(executor: str, workers: int | None) -> int:
     return check_workers(workers)
 
 
-def _execute(out, scenarios, methods, *, quiet, executor, ray_address, workers, memory, t0):
-    """Run the cells into out, then draw figure.png and write report.md."""
-    from loopid.experiments.execute import run_cells, write_outputs
+def _execute(runs, *, quiet, executor, ray_address, workers, memory, t0):
+    """Run the cells of each run, ``(out, scenarios, methods)``, into its out (the runs' cells
+    given to the same workers), then draw each one's figure.png and write its report.md."""
+    from loopid.experiments.execute import Run, run_all, write_outputs
 
     output = _Output(quiet)
     try:
-        table = run_cells(
-            out, scenarios, methods, executor_name=executor, ray_address=ray_address,
+        tables = run_all(
+            [Run(*r) for r in runs], executor_name=executor, ray_address=ray_address,
             workers=workers, memory=memory, on_cell=output.on_cell, log=output.log,
         )  # fmt: skip
     finally:
         output.close()
-    write_outputs(out, table, time.perf_counter() - t0)
-    output.log(f"wrote {table.num_rows} rows, figure.png and report.md to {out}/")
+    for (out, _, _), table in zip(runs, tables, strict=True):
+        write_outputs(out, table, time.perf_counter() - t0)
+        output.log(f"wrote {table.num_rows} rows, figure.png and report.md to {out}/")
 
 
 EXECUTOR = typer.Option("local", "--executor", help="local (this machine) or ray.")
@@ -305,7 +307,7 @@ def run(
     elif chosen is None:
         chosen = list(family.default_methods(s))
     _execute(
-        out, [s], chosen, quiet=quiet, executor=executor, ray_address=ray_address,
+        [(out, [s], chosen)], quiet=quiet, executor=executor, ray_address=ray_address,
         workers=workers, memory=memory, t0=t0,
     )  # fmt: skip
 
@@ -340,16 +342,14 @@ def reproduce(
     if readings is not None:
         changes.update(preset(readings))
     scenarios = [s.replace(**changes) for s in SCENARIOS.values()]
-    _execute(
-        out, scenarios, list(METHODS), quiet=quiet, executor=executor, ray_address=ray_address,
-        workers=workers, memory=memory, t0=t0,
-    )  # fmt: skip
-    # the extra figure: the finite-MDP study, where the paper's bounds are exact
+    # the extra figure: the finite-MDP study, where the paper's bounds are exact; its cells
+    # run on the same workers, after the helicopter's
     mdp_changes = {k: v for k, v in changes.items() if k in ("iterations", "seeds")}
-    scenarios = [mdp.MDP_SCENARIOS[n].replace(**mdp_changes) for n in ("mdp-random", "mdp-trap")]
+    mdps = [mdp.MDP_SCENARIOS[n].replace(**mdp_changes) for n in ("mdp-random", "mdp-trap")]
     _execute(
-        out / "mdp", scenarios, list(mdp.MDP_METHODS), quiet=quiet, executor=executor,
-        ray_address=ray_address, workers=workers, memory=memory, t0=t0,
+        [(out, scenarios, list(METHODS)), (out / "mdp", mdps, list(mdp.MDP_METHODS))],
+        quiet=quiet, executor=executor, ray_address=ray_address, workers=workers,
+        memory=memory, t0=t0,
     )  # fmt: skip
 
 

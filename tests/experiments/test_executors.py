@@ -47,6 +47,16 @@ def test_spread_puts_each_scenarios_first_cell_first():
     assert order[3:] == [1, 2, 4, 5, 7, 8]  # then the rest in the given order
 
 
+def test_spread_takes_the_families_one_after_another():
+    from loopid.experiments.families.mdp import MDP_SCENARIOS
+
+    mdp = [Job(MDP_SCENARIOS[n], m, np.arange(2)) for n in ("mdp-random", "mdp-trap") for m in "ab"]
+    js = jobs()
+    mixed = [mdp[0], *js[:4], mdp[1], mdp[2], *js[4:], mdp[3]]  # the MDP's first in front
+    order = [mixed[i] for i in spread(mixed)]
+    assert order == [mdp[0], mdp[2], mdp[1], mdp[3], *(js[i] for i in spread(js))]
+
+
 @pytest.mark.parametrize("bad", [0, -1, 1.5, "2", True])
 def test_check_workers_names_the_bad_value(bad):
     with pytest.raises(ValueError, match="--workers"):

@@ -139,3 +139,43 @@ def test_a_failed_write_removes_its_temporary_file(tmp_path):
     with pytest.raises(OSError):
         replace_atomically(tmp_path / "a.parquet", fails)
     assert list(tmp_path.iterdir()) == []
+
+
+def test_runs_given_together_equal_runs_given_one_by_one(finished, tmp_path, counted):
+    """run_all (what ``loopid reproduce`` does with the helicopter's and the MDP study's run
+    directories, one inside the other): each run's table and files as its own run_cells gives,
+    every cell computed once; a finished run is skipped; scenario names shared by two runs are
+    refused before anything is written."""
+    Run = execute.Run
+    out = tmp_path / "outer"
+    runs = [Run(out, SCENARIOS[:1], METHODS), Run(out / "inner", SCENARIOS[1:], METHODS)]
+    tables = execute.run_all(runs)
+    assert sorted(counted) == [("hover", "expert"), ("hover-delay", "expert")]
+    alone = read_table(finished / "results.parquet")
+    assert tables[0].equals(alone.slice(0, 6)) and tables[1].equals(alone.slice(6, 6))
+    assert read_table(out / "inner" / "results.parquet").equals(tables[1])
+    counted.clear()
+    assert execute.run_all(runs)[0].equals(tables[0]) and counted == []
+    with pytest.raises(ValueError, match="names must differ across the runs"):
+        execute.run_all([runs[0], Run(tmp_path / "other", SCENARIOS[:1], METHODS)])
+    assert not (tmp_path / "other").exists()
+
+
+def test_runs_together_that_finish_nothing_leave_nothing_behind(tmp_path, monkeypatch):
+    """The disk fills at the first save: the outer run's folder (which holds the inner one)
+    goes, with nothing saved in either."""
+    import errno
+
+    def full_disk(f, **arrays):
+        raise OSError(errno.ENOSPC, "No space left on device")
+
+    monkeypatch.setattr(np, "savez", full_disk)
+    out = tmp_path / "new" / "run"
+    chunked = [s.replace(iterations=2, seeds=20) for s in SCENARIOS]  # a chunk is saved first
+    runs = [
+        execute.Run(out, chunked[:1], METHODS),
+        execute.Run(out / "mdp", chunked[1:], METHODS),
+    ]
+    with pytest.raises(OSError, match="No space left"):
+        execute.run_all(runs, workers=1)
+    assert list(tmp_path.iterdir()) == []

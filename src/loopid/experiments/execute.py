@@ -190,6 +190,17 @@ def run_chunk(
         raise
 
 
+class Run(NamedTuple):
+    """One run directory's cells, as :func:`run_all` takes them: ``out``, its ``scenarios`` (one
+    family's), their ``methods`` (one list, or ``{scenario name: list}``) and ``seeds``
+    (default: the first scenario's)."""
+
+    out: Any
+    scenarios: Sequence[Scenario]
+    methods: Methods
+    seeds: Any = None
+
+
 def run_cells(
     out,
     scenarios: Sequence[Scenario],
@@ -220,7 +231,46 @@ def run_cells(
     there a lane set measured only 1.03x faster, ``benchmarks/lanes.py``, and its fewer, larger
     tasks balance less evenly over the workers); the table is the same either way.
     """
-    seeds = check_cells(scenarios, methods, seeds)
+    options = dict(executor_name=executor_name, ray_address=ray_address, workers=workers)
+    options.update(memory=memory, on_cell=on_cell, log=log, lanes=lanes)
+    return run_all([Run(out, scenarios, methods, seeds)], **options)[0]
+
+
+class _Planned(NamedTuple):
+    """A run being computed: its directory, configuration, cells in table order, family, seeds,
+    the tasks of its unfinished cells, its progress bars (None: none), and the outermost folder
+    it creates (None: none)."""
+
+    rd: RunDir
+    config: dict
+    order: list
+    family: Family
+    seeds: np.ndarray
+    jobs: list[Job]
+    progress: Callable | None
+    created: Path | None
+
+
+def run_all(
+    runs: Sequence[Run],
+    *,
+    executor_name: str = "local",
+    ray_address: str | None = None,
+    workers: int = 1,
+    memory: float | None = None,
+    on_cell: ProgressFactory | None = None,
+    log: Callable[[str], None] | None = None,
+    lanes: bool | None = None,
+) -> list[pa.Table]:
+    """:func:`run_cells` for several run directories at once (each :class:`Run` one family's,
+    their scenario names all different), their tasks given to one executor, so that the
+    workers a run leaves idle at its end take another run's cells; return each run's table.
+    Everything is checked before anything is written."""
+    specs = [Run(*r) for r in runs]
+    names = [s.name for r in specs for s in r.scenarios]
+    if len(set(names)) != len(names):
+        raise ValueError(f"scenario names must differ across the runs, got {names}")
+    seeds = [check_cells(r.scenarios, r.methods, r.seeds) for r in specs]
     check_executor(executor_name, ray_address)
     chunks.check_memory(memory)
     threads = executor_name == "local" and backend.shared_device()  # workers share the device
@@ -229,74 +279,95 @@ def run_cells(
     options = {"workers": workers, "threads": threads} if executor_name == "local" else {}
     if executor_name == "local" and workers > 1 and not threads:
         chunks.check_processes(workers)
-    check_writable(out)
+    for r in specs:
+        check_writable(r.out)
     if executor_name == "ray":
         import ray
 
         if not ray.is_initialized():  # connect before anything is written (a bad address)
             with ray_session(ray_address):
-                return run_cells(
-                    out, scenarios, methods, seeds, executor_name="ray", memory=memory,
-                    on_cell=on_cell, log=log, lanes=lanes,
+                return run_all(
+                    [r._replace(seeds=s) for r, s in zip(specs, seeds, strict=True)],
+                    executor_name="ray", memory=memory, on_cell=on_cell, log=log, lanes=lanes,
                 )  # fmt: skip
-    rd = RunDir(out)
-    config = resolved_config(scenarios, methods, seeds)
-    rd.prepare(config, create=False)
-    order = [(s.name, m) for s in scenarios for m in methods_of(methods, s)]
-    family = family_of(scenarios[0])
-    todo = []
-    for s in scenarios:
-        for m in methods_of(methods, s):
-            if rd.done(s.name, m):
-                if log:
-                    log(f"{s.name} / {m}: already finished, skipped")
-            else:
-                todo.append((s, m))
     processes = options.get("workers", 1) if executor_name == "local" else (os.cpu_count() or 1)
     # each process (or thread) computing at once gets its share
     limit = chunks.budget(memory, processes, threads=threads)
     if lanes is None:
         lanes = backend.accelerator()
-    groups = lane_sets(family, todo) if lanes and family.run_lanes is not None else None
-    widest = max((len(g) for g in (groups or {}).values()), default=1)
-    check_rows(scenarios, seeds, limit, widest)
-    jobs = plan(rd, todo, seeds, family, groups)
-    cell_progress = progress_bars(rd, todo, seeds, on_cell)
+    planned = [_plan(r, s, limit, lanes, on_cell, log) for r, s in zip(specs, seeds, strict=True)]
+    owner = {id(job): p for p in planned for job in p.jobs}  # the run each task belongs to
+
+    def progress(job: Job):
+        bars = owner[id(job)].progress
+        return bars(job) if bars is not None else None
+
+    on_job = progress if on_cell is not None else None
 
     def run_round(jobs, task) -> list[Job]:
         """Run the jobs, saving each finished one; return the Oversized ones' smaller chunks."""
         retry = []
-        for job, done in executor(executor_name)(jobs, task, on_job=cell_progress, **options):
+        for job, done in executor(executor_name)(jobs, task, on_job=on_job, **options):
+            p = owner[id(job)]
             if isinstance(done, Oversized):
-                retry += resplit(job, done.nbytes, seeds, limit)
-            elif isinstance(done, dict):  # a lane set: each method's cell (or chunk)
-                for m, result in done.items():
-                    _save(rd, config, order, family, seeds, job._replace(method=m), result, log)
-            else:
-                _save(rd, config, order, family, seeds, job, done, log)
+                smaller = resplit(job, done.nbytes, p.seeds, limit)
+                owner.update((id(j), p) for j in smaller)
+                retry += smaller
+                continue
+            results = done if isinstance(done, dict) else {job.method: done}  # a lane set's
+            for m, result in results.items():
+                _save(p, job._replace(method=m), result, log)
         return retry
 
-    created = _first_missing(rd.path)
     try:
         # each task measures itself; those over budget come back as chunks sized from that
         # measurement (chunks.chunk_size), which run as they are
-        retry = run_round(jobs, partial(run_chunk, limit=limit))
+        retry = run_round([job for p in planned for job in p.jobs], partial(run_chunk, limit=limit))
         if retry:
             run_round(retry, run_chunk)
     except BaseException:
         # a run that finished nothing leaves nothing behind (a full disk, an interrupt): the
-        # folders this call created go, unless a cell or chunk was saved (it resumes from it)
-        if created is not None and not any(rd.cells.rglob("*.parquet")):
-            shutil.rmtree(created, ignore_errors=True)
+        # folders these runs created go, unless a cell or chunk was saved in one (it resumes)
+        for p in planned:
+            if p.created is not None and not any(_saved_any(q, p.created) for q in planned):
+                shutil.rmtree(p.created, ignore_errors=True)
         raise
-    if not rd.exists():
-        return rd.write_results(order, save=False)
-    return rd.write_results(order)
+    return [p.rd.write_results(p.order, save=p.rd.exists()) for p in planned]
 
 
-def _save(rd: RunDir, config, order, family: Family, seeds, job, done: CellResult, log) -> None:
-    """Save a finished task (module docstring): a whole cell's artifacts then rows, or a chunk's
-    files (merged into its cell's once all are in); then ``results.parquet``."""
+def _plan(r: Run, seeds, limit: int, lanes: bool, on_cell, log) -> _Planned:
+    """A run's unfinished cells (finished ones logged as skipped) and their tasks."""
+    rd = RunDir(r.out)
+    config = resolved_config(r.scenarios, r.methods, seeds)
+    rd.prepare(config, create=False)
+    order = [(s.name, m) for s in r.scenarios for m in methods_of(r.methods, s)]
+    family = family_of(r.scenarios[0])
+    todo = []
+    for s in r.scenarios:
+        for m in methods_of(r.methods, s):
+            if rd.done(s.name, m):
+                if log:
+                    log(f"{s.name} / {m}: already finished, skipped")
+            else:
+                todo.append((s, m))
+    groups = lane_sets(family, todo) if lanes and family.run_lanes is not None else None
+    widest = max((len(g) for g in (groups or {}).values()), default=1)
+    check_rows(r.scenarios, seeds, limit, widest)
+    jobs = plan(rd, todo, seeds, family, groups)
+    progress = progress_bars(rd, todo, seeds, on_cell)
+    return _Planned(rd, config, order, family, seeds, jobs, progress, _first_missing(rd.path))
+
+
+def _saved_any(p: _Planned, folder: Path) -> bool:
+    """Whether run ``p`` lies in ``folder`` and has saved a cell or chunk."""
+    inside = p.rd.path.absolute().is_relative_to(folder)
+    return inside and any(p.rd.cells.rglob("*.parquet"))
+
+
+def _save(p: _Planned, job, done: CellResult, log) -> None:
+    """Save a finished task of run ``p`` (module docstring): a whole cell's artifacts then rows,
+    or a chunk's files (merged into its cell's once all are in); then ``results.parquet``."""
+    rd, config, order, family, seeds = p.rd, p.config, p.order, p.family, p.seeds
     s, method = job.scenario, job.method
     rd.ensure(config)
     count = job.part[1] - job.part[0]

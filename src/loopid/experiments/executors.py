@@ -169,15 +169,23 @@ def run_local(
 
 
 def spread(jobs: Sequence[Job]) -> list[int]:
-    """The order in which parallel workers take the jobs: the first job of each scenario, then
-    the others in their order. Workers starting together then compile different programs, and a
+    """The order in which parallel workers take the jobs: family by family (the type of their
+    scenarios, in the order they first appear), the first job of each scenario, then the
+    others in their order. Workers starting together then compile different programs, and a
     worker reaches a scenario's later cells once another has compiled its program into the
-    shared cache (round-robin would have two workers compile the same program at once)."""
-    lanes: dict[str, list[int]] = {}
+    shared cache (round-robin would have two workers compile the same program at once); a
+    second family's cells (``run_all``) fill the workers the first leaves idle at its end."""
+    families: dict[type, list[int]] = {}
     for i, job in enumerate(jobs):
-        lanes.setdefault(job.scenario.name, []).append(i)
-    firsts = [lane[0] for lane in lanes.values()]
-    return firsts + [i for i in range(len(jobs)) if i not in firsts]
+        families.setdefault(type(job.scenario), []).append(i)
+    order = []
+    for indices in families.values():
+        first: dict[str, int] = {}
+        for i in indices:
+            first.setdefault(jobs[i].scenario.name, i)
+        firsts = list(first.values())
+        order += firsts + [i for i in indices if i not in firsts]
+    return order
 
 
 _WORKER: dict = {}
