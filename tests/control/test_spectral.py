@@ -45,20 +45,31 @@ def test_squaring_is_exact_to_rounding_on_known_radii():
     np.testing.assert_allclose(squared(np.diag([-3.0, 2.0, 1e-3])), 3.0, rtol=1e-15)
 
 
-def test_squaring_loses_digits_with_non_normality_as_documented():
-    """The module docstring's accuracy: rounding error about κ(V)² n ε (geev: κ(V) ε)."""
-    rng = np.random.default_rng(1)
-    lam = rng.uniform(-0.97, 0.97, 21)
-    M = similar(rng, lam, 1e6)
-    err = abs(squared(M) - np.max(np.abs(lam))) / np.max(np.abs(lam))
-    assert 1e-9 < err < 0.1
+@pytest.mark.parametrize("n", [5, 21])
+def test_squaring_error_grows_as_the_documented_bound(n):
+    """The module docstring's accuracy: rounding error at most about κ(V)² n ε (checked with
+    a factor 10, four draws per κ), more than geev's about κ(V) ε once κ is large."""
+    eps = np.finfo(float).eps
+    for kappa in (1e2, 1e3, 1e4, 1e5):
+        errors, geev = [], []
+        for seed in range(4):
+            rng = np.random.default_rng(seed)
+            lam = rng.uniform(-0.97, 0.97, n)
+            M = similar(rng, lam, kappa)
+            exact = np.max(np.abs(lam))
+            errors.append(abs(squared(M) - exact) / exact)
+            geev.append(abs(np.max(np.abs(np.linalg.eigvals(M))) - exact) / exact)
+        assert max(errors) <= 10 * kappa**2 * n * eps, (kappa, max(errors))
+    assert max(errors) > max(geev)  # at κ = 1e5 squaring loses more digits than geev
 
 
 def test_degenerate_matrices():
     assert np.all(squared(np.zeros((2, 3, 3))) == 0.0)
     assert squared(np.array([[0.0, 1.0], [0.0, 0.0]])) == 0.0  # nilpotent
     assert np.isnan(squared(np.array([[np.nan, 1.0], [0.0, 0.0]])))
-    assert not np.isfinite(squared(np.array([[np.inf, 1.0], [0.0, 0.0]])))
+    assert np.isnan(squared(np.array([[np.inf, 1.0], [0.0, 0.0]])))
+    assert squared(np.array([[0, 1], [2, 0]])) == pytest.approx(np.sqrt(2), rel=1e-15)  # integers
+    assert squared(np.diag([1e300, 1.0])) == 1e300  # no rounding of log ‖M‖
 
 
 def test_batches_jit_and_vmap():
@@ -108,3 +119,25 @@ def test_lqr_on_the_accelerators_path_gives_the_same_solution(monkeypatch):
     assert np.any(cpu.converged) and not np.all(cpu.converged)
     ok = np.isfinite(cpu.spectral_radius)
     np.testing.assert_allclose(gpu.spectral_radius[ok], cpu.spectral_radius[ok], rtol=1e-13)
+
+
+def test_the_stability_verdict_on_the_accelerators_path(monkeypatch):
+    """A mode the input cannot reach and the cost does not see: the doubling meets its
+    tolerance and the residual is tiny, so only ρ(A − BK) = 1.2 ≥ 1 makes ``converged`` False;
+    the accelerator's path reads the same verdict and radius."""
+    from loopid.control import dlqr
+
+    A = np.diag([1.2, 0.5])
+    B = np.array([[0.0], [1.0]])
+    Q = np.diag([0.0, 1.0])
+    R = np.eye(1)
+    cpu = dlqr(A, B, Q, R)
+    jax.clear_caches()
+    monkeypatch.setattr(jax, "default_backend", lambda: "gpu")
+    try:
+        gpu = dlqr(A, B, Q, R)
+    finally:
+        jax.clear_caches()
+    for sol in (cpu, gpu):
+        assert sol.residual <= 1e-8 and not sol.converged
+        assert float(sol.spectral_radius) == pytest.approx(1.2, rel=1e-14)
