@@ -3,6 +3,7 @@ configurations refused."""
 
 import copy
 import shutil
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -178,4 +179,50 @@ def test_runs_together_that_finish_nothing_leave_nothing_behind(tmp_path, monkey
     ]
     with pytest.raises(OSError, match="No space left"):
         execute.run_all(runs, workers=1)
+    assert list(tmp_path.iterdir()) == []
+
+
+def _disk_full_in(folder):
+    """``np.savez`` that fails with a full disk for files under ``folder``/cells only."""
+    import errno
+
+    real = np.savez
+
+    def savez(f, **arrays):
+        if Path(f.name).is_relative_to(folder / "cells"):
+            raise OSError(errno.ENOSPC, "No space left on device")
+        return real(f, **arrays)
+
+    return savez
+
+
+@pytest.mark.parametrize("failing", ["outer", "inner"])
+def test_nested_runs_keep_what_the_other_saved(tmp_path, monkeypatch, failing):
+    """One run's saves fail after the other's succeeded (one worker: the runs in the order
+    given, the one that fails last): the run that saved keeps its cells; of the one that saved
+    nothing, everything it wrote goes, its folder too where it holds no other run's."""
+    out = tmp_path / "new" / "run"
+    chunked = [s.replace(iterations=2, seeds=20) for s in SCENARIOS]
+    outer, inner = (
+        execute.Run(out, chunked[:1], METHODS),
+        execute.Run(out / "mdp", chunked[1:], METHODS),
+    )
+    runs = [inner, outer] if failing == "outer" else [outer, inner]
+    monkeypatch.setattr(np, "savez", _disk_full_in(out if failing == "outer" else out / "mdp"))
+    with pytest.raises(OSError, match="No space left"):
+        execute.run_all(runs, workers=1)
+    saved = inner if failing == "outer" else outer
+    assert list((Path(saved.out) / "cells").glob("*.parquet"))  # its chunks or its cell
+    if failing == "outer":
+        assert sorted(p.name for p in out.iterdir()) == ["mdp"]  # no config.toml, no cells
+    else:
+        assert not (out / "mdp").exists()
+
+
+def test_runs_need_their_own_directories(tmp_path):
+    with pytest.raises(ValueError, match="its own directory"):
+        execute.run_all([execute.Run(tmp_path / "a", SCENARIOS[:1], METHODS),
+                         execute.Run(tmp_path / "a", SCENARIOS[1:], METHODS)])  # fmt: skip
+    with pytest.raises(ValueError, match="scenario names must differ, got"):
+        execute.run_cells(tmp_path / "b", [SCENARIOS[0], SCENARIOS[0]], METHODS)
     assert list(tmp_path.iterdir()) == []

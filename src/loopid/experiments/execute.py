@@ -21,6 +21,9 @@ directory already there holds the same configuration), then:
    its rows; a chunk's files, merged into its cell's once all are in;
 3. rewrites ``results.parquet`` in the fixed scenario × method order after every cell.
 
+:func:`run_all` does the same for several run directories at once (``loopid reproduce``: the
+helicopter's and, inside it, the MDP study's), their tasks given to one executor.
+
 Rerunning the same call skips what is finished and ends with the same table, row for row. The
 run directory and its ``config.toml`` are created when the first task finishes, so a run that
 finishes nothing leaves nothing behind. :func:`write_outputs` draws ``figure.png`` and writes
@@ -267,10 +270,13 @@ def run_all(
     workers a run leaves idle at its end take another run's cells; return each run's table.
     Everything is checked before anything is written."""
     specs = [Run(*r) for r in runs]
+    seeds = [check_cells(r.scenarios, r.methods, r.seeds) for r in specs]
+    folders = [Path(r.out).absolute() for r in specs]
+    if len(set(folders)) != len(folders):
+        raise ValueError(f"each run needs its own directory, got {[str(f) for f in folders]}")
     names = [s.name for r in specs for s in r.scenarios]
     if len(set(names)) != len(names):
         raise ValueError(f"scenario names must differ across the runs, got {names}")
-    seeds = [check_cells(r.scenarios, r.methods, r.seeds) for r in specs]
     check_executor(executor_name, ray_address)
     chunks.check_memory(memory)
     threads = executor_name == "local" and backend.shared_device()  # workers share the device
@@ -296,10 +302,10 @@ def run_all(
     if lanes is None:
         lanes = backend.accelerator()
     planned = [_plan(r, s, limit, lanes, on_cell, log) for r, s in zip(specs, seeds, strict=True)]
-    owner = {id(job): p for p in planned for job in p.jobs}  # the run each task belongs to
+    owner = {s.name: p for r, p in zip(specs, planned, strict=True) for s in r.scenarios}
 
     def progress(job: Job):
-        bars = owner[id(job)].progress
+        bars = owner[job.scenario.name].progress
         return bars(job) if bars is not None else None
 
     on_job = progress if on_cell is not None else None
@@ -308,11 +314,9 @@ def run_all(
         """Run the jobs, saving each finished one; return the Oversized ones' smaller chunks."""
         retry = []
         for job, done in executor(executor_name)(jobs, task, on_job=on_job, **options):
-            p = owner[id(job)]
+            p = owner[job.scenario.name]  # the run the task belongs to
             if isinstance(done, Oversized):
-                smaller = resplit(job, done.nbytes, p.seeds, limit)
-                owner.update((id(j), p) for j in smaller)
-                retry += smaller
+                retry += resplit(job, done.nbytes, p.seeds, limit)
                 continue
             results = done if isinstance(done, dict) else {job.method: done}  # a lane set's
             for m, result in results.items():
@@ -326,11 +330,12 @@ def run_all(
         if retry:
             run_round(retry, run_chunk)
     except BaseException:
-        # a run that finished nothing leaves nothing behind (a full disk, an interrupt): the
-        # folders these runs created go, unless a cell or chunk was saved in one (it resumes)
+        # a run that finished nothing leaves nothing behind (a full disk, an interrupt): of
+        # the folders it created, the outermost that holds no other run's saved cell or chunk
+        # goes (one that saved something resumes from it)
         for p in planned:
-            if p.created is not None and not any(_saved_any(q, p.created) for q in planned):
-                shutil.rmtree(p.created, ignore_errors=True)
+            if p.created is not None and not _saved_any(p, p.rd.path):
+                _remove_created(p, planned)
         raise
     return [p.rd.write_results(p.order, save=p.rd.exists()) for p in planned]
 
@@ -360,8 +365,27 @@ def _plan(r: Run, seeds, limit: int, lanes: bool, on_cell, log) -> _Planned:
 
 def _saved_any(p: _Planned, folder: Path) -> bool:
     """Whether run ``p`` lies in ``folder`` and has saved a cell or chunk."""
-    inside = p.rd.path.absolute().is_relative_to(folder)
+    inside = p.rd.path.absolute().is_relative_to(Path(folder).absolute())
     return inside and any(p.rd.cells.rglob("*.parquet"))
+
+
+def _remove_created(p: _Planned, planned: list[_Planned]) -> None:
+    """Remove what run ``p`` (which saved nothing) created: the outermost of the folders from
+    its own up to :attr:`_Planned.created` that holds no other run's saved cell or chunk."""
+    path, top = p.rd.path.absolute(), p.created.absolute()
+    chosen = None
+    for folder in (path, *path.parents):
+        if not folder.is_relative_to(top):
+            break
+        if any(_saved_any(q, folder) for q in planned if q is not p):
+            break
+        chosen = folder
+    if chosen is not None:
+        shutil.rmtree(chosen, ignore_errors=True)
+    else:  # its own folder holds another run's saved cells: only its own files go
+        for name in ("config.toml", "results.parquet"):
+            (path / name).unlink(missing_ok=True)
+        shutil.rmtree(p.rd.cells, ignore_errors=True)
 
 
 def _save(p: _Planned, job, done: CellResult, log) -> None:

@@ -183,8 +183,8 @@ def spread(jobs: Sequence[Job]) -> list[int]:
         first: dict[str, int] = {}
         for i in indices:
             first.setdefault(jobs[i].scenario.name, i)
-        firsts = list(first.values())
-        order += firsts + [i for i in indices if i not in firsts]
+        firsts = set(first.values())
+        order += list(first.values()) + [i for i in indices if i not in firsts]
     return order
 
 
