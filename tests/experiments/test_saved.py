@@ -268,6 +268,27 @@ def test_the_flown_path_costs_what_the_plant_charged(delay_mode):
     np.testing.assert_allclose(cost, float(expected[0]), rtol=1e-9)
 
 
+def test_trajectories_fly_the_saved_gains_without_building_a_setup(
+    hover_run, tmp_path, monkeypatch
+):
+    """A run whose cells ran in worker processes draws trajectories.png in the command's own
+    process: flying saved gains needs the scenario's plant, not its Setup (the expert's gains,
+    the model, the loop program), which that process would otherwise build and compile again."""
+    from loopid.experiments.families.helicopter import assembly, saved
+
+    out, _ = hover_run
+    assert assembly.setup(HOVER).plant is assembly.scenario_plant(HOVER)
+
+    def no_setup(key):
+        raise AssertionError(f"built the Setup of {key.task}")
+
+    monkeypatch.setattr(assembly, "_setup", no_setup)
+    saved.trajectories(out, {HOVER.name: HOVER}, tmp_path / "t.png")
+    assert (tmp_path / "t.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    with pytest.raises(AssertionError, match="built the Setup"):
+        assembly.setup(HOVER)  # the patch is in place: the test would catch a Setup
+
+
 @pytest.mark.slow
 def test_trajectories_png_and_animate(hover_run, tmp_path, capsys):
     from loopid.cli import main

@@ -72,14 +72,27 @@ def setup(s: Scenario) -> Setup:
     return _setup(program_key(s))
 
 
+def scenario_plant(s: Scenario) -> Plant:
+    """The plant of scenario ``s`` alone: its task and simulator, without the expert, the model
+    or the loop program (what flying a saved policy needs; :attr:`Setup.plant` is this one).
+    Cached like the Setup."""
+    return _plant(program_key(s))
+
+
 @lru_cache(maxsize=8)
-def _setup(key: Scenario) -> Setup:
-    alternatives = _alternatives(key)
+def _plant(key: Scenario) -> Plant:
     task = make_task(key.task, noise_std=key.noise_std, delay=key.delay, pads=key.pads)
-    plant = core.helicopter_plant(
+    return core.helicopter_plant(
         task, stop_norm=key.stop_norm, nu_pending=key.nu_pending, cost_cap=key.cost_cap,
         delay_mode=key.delay_mode,
     )  # fmt: skip
+
+
+@lru_cache(maxsize=8)
+def _setup(key: Scenario) -> Setup:
+    alternatives = _alternatives(key)
+    plant = _plant(key)
+    task = plant.task
     K_expert = expert_gains(task)
     nominal = core.helicopter_nominal_model(plant, key.funnel_nominal)
     # the agent: the paper's by default; a ``model_*`` model class (one global model for every

@@ -15,7 +15,7 @@ from loopid.algorithms.loop import (
 )
 from loopid.experiments import model_planner
 from loopid.experiments.artifacts import tested_gains
-from loopid.experiments.families.helicopter.assembly import setup
+from loopid.experiments.families.helicopter.assembly import scenario_plant, setup
 from loopid.experiments.findings import findings_section
 from loopid.experiments.report import final_cost_sections
 from loopid.experiments.scenarios import Scenario, readings_line
@@ -115,8 +115,7 @@ def _flights(run_dir, s: Scenario, methods, seed: int) -> dict:
     from loopid.experiments import artifacts
     from loopid.experiments.flights import fly
 
-    st = setup(s)
-    plant = st.plant
+    plant = scenario_plant(s)  # the whole Setup (its expert, model, program) only for MPC
     key = stream_key(jax.random.key(int(seed)), TEST)  # the loop's test noise
     noise = plant.eval_noise(key, 1)[0]
     flights = {}
@@ -124,6 +123,7 @@ def _flights(run_dir, s: Scenario, methods, seed: int) -> dict:
         _, arrays = artifacts.read(Path(run_dir) / "cells", s.name, m)
         one = artifacts.for_seed(arrays, seed, f"{s.name}/{m}")
         if _flew_mpc(s, one):
+            st = setup(s)
             params = st.model.restore(one)
             flights[m] = np.asarray(jax.jit(st.mpc.flight)(params, noise)[0])
         else:
@@ -151,7 +151,7 @@ def trajectories(run_dir, configs: dict[str, Scenario], path) -> None:
             info, _ = artifacts.read(Path(run_dir) / "cells", name, methods[0])
             seed = info["seeds"][0]
             flights = _flights(run_dir, s, methods, seed)
-            panels.append((setup(s).plant.task, flights, f"{name}, seed {seed}"))
+            panels.append((scenario_plant(s).task, flights, f"{name}, seed {seed}"))
     if panels:
         trajectories_figure(panels, path)
 
@@ -166,4 +166,4 @@ def animate(run_dir, s: Scenario, methods, seed: int, path) -> None:
             raise ValueError(
                 f"{s.name} has no saved policy of method {m!r}; it has {', '.join(saved)}"
             )
-    animate_flights(setup(s).plant.task, _flights(run_dir, s, methods, seed), path)
+    animate_flights(scenario_plant(s).task, _flights(run_dir, s, methods, seed), path)

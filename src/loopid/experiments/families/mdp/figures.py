@@ -13,7 +13,7 @@ from pathlib import Path
 import jax
 import numpy as np
 
-from loopid.experiments.families.mdp.scenario import MDP_METHODS, mdp_setup
+from loopid.experiments.families.mdp.scenario import MDP_METHODS, scenario_mdp
 
 _LABEL = {"dagger": "DAgger", "batch": "Batch", "abbeel": "Abbeel"}
 _COLOR = {"dagger": "C0", "batch": "C3", "abbeel": "C2"}
@@ -147,7 +147,7 @@ def trajectories(run_dir, configs, path) -> None:
     fig, axes = plt.subplots(len(panels), 1, figsize=(8, 3.2 * len(panels)), squeeze=False,
                              layout="constrained")  # fmt: skip
     for ax, (name, s) in zip(axes[:, 0], panels, strict=True):
-        mdp = mdp_setup(s).mdp
+        mdp = scenario_mdp(s)  # the MDP alone, not its loop program
         optimal = value_iteration(mdp.P, mdp.C, mdp.gamma, tol=1e-12, max_iter=100_000).policy
         policies = {"optimal": np.asarray(optimal)}
         for m in MDP_METHODS:
