@@ -97,6 +97,20 @@ def test_bad_input():
         spectral_radius(np.ones((3, 2)))
 
 
+def on_both_paths(monkeypatch, solve):
+    """``(solve() traced for this CPU, solve() traced as for a GPU)``: the second with
+    ``jax.default_backend`` patched, between cleared caches so that no program traced for the
+    GPU's path stays in this process."""
+    cpu = solve()
+    jax.clear_caches()
+    monkeypatch.setattr(jax, "default_backend", lambda: "gpu")
+    try:
+        return cpu, solve()
+    finally:
+        jax.clear_caches()
+        monkeypatch.undo()
+
+
 def test_lqr_on_the_accelerators_path_gives_the_same_solution(monkeypatch):
     """dlqr_affine traced as for a GPU: the same gains bit for bit (the radius is not used to
     compute them), the radius within 1e-13 of the eigenvalues', the same stability verdicts."""
@@ -107,13 +121,7 @@ def test_lqr_on_the_accelerators_path_gives_the_same_solution(monkeypatch):
     As = A + 1e-3 * rng.standard_normal((6, *A.shape))
     As[:, -1] = A[-1]  # the constant coordinate stays constant
     As[0, :-1, :-1] = np.eye(A.shape[0] - 1)  # an integrator model: the LQR does not converge
-    cpu = dlqr_affine(As, B, Q, R)
-    jax.clear_caches()
-    monkeypatch.setattr(jax, "default_backend", lambda: "gpu")
-    try:
-        gpu = dlqr_affine(As, B, Q, R)
-    finally:
-        jax.clear_caches()  # no program traced for the GPU's path stays in this process
+    cpu, gpu = on_both_paths(monkeypatch, lambda: dlqr_affine(As, B, Q, R))
     np.testing.assert_array_equal(gpu.K, cpu.K)
     np.testing.assert_array_equal(gpu.converged, cpu.converged)
     assert np.any(cpu.converged) and not np.all(cpu.converged)
@@ -131,13 +139,7 @@ def test_the_stability_verdict_on_the_accelerators_path(monkeypatch):
     B = np.array([[0.0], [1.0]])
     Q = np.diag([0.0, 1.0])
     R = np.eye(1)
-    cpu = dlqr(A, B, Q, R)
-    jax.clear_caches()
-    monkeypatch.setattr(jax, "default_backend", lambda: "gpu")
-    try:
-        gpu = dlqr(A, B, Q, R)
-    finally:
-        jax.clear_caches()
+    cpu, gpu = on_both_paths(monkeypatch, lambda: dlqr(A, B, Q, R))
     for sol in (cpu, gpu):
         assert sol.residual <= 1e-8 and not sol.converged
         assert float(sol.spectral_radius) == pytest.approx(1.2, rel=1e-14)
