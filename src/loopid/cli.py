@@ -145,12 +145,12 @@ def _workers(executor: str, workers: int | None) -> int:
 def _execute(runs, *, quiet, executor, ray_address, workers, memory, t0):
     """Run the cells of each run, ``(out, scenarios, methods)``, into its out (the runs' cells
     given to the same workers), then draw each one's figure.png and write its report.md."""
-    from loopid.experiments.execute import Run, run_all, write_outputs
+    from loopid.experiments.execute import run_all, write_outputs
 
     output = _Output(quiet)
     try:
         tables = run_all(
-            [Run(*r) for r in runs], executor_name=executor, ray_address=ray_address,
+            runs, executor_name=executor, ray_address=ray_address,
             workers=workers, memory=memory, on_cell=output.on_cell, log=output.log,
         )  # fmt: skip
     finally:

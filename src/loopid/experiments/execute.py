@@ -234,9 +234,11 @@ def run_cells(
     there a lane set measured only 1.03x faster, ``benchmarks/lanes.py``, and its fewer, larger
     tasks balance less evenly over the workers); the table is the same either way.
     """
-    options = dict(executor_name=executor_name, ray_address=ray_address, workers=workers)
-    options.update(memory=memory, on_cell=on_cell, log=log, lanes=lanes)
-    return run_all([Run(out, scenarios, methods, seeds)], **options)[0]
+    return run_all(
+        [Run(out, scenarios, methods, seeds)], executor_name=executor_name,
+        ray_address=ray_address, workers=workers, memory=memory, on_cell=on_cell, log=log,
+        lanes=lanes,
+    )[0]  # fmt: skip
 
 
 class _Planned(NamedTuple):
@@ -330,12 +332,12 @@ def run_all(
         if retry:
             run_round(retry, run_chunk)
     except BaseException:
-        # a run that finished nothing leaves nothing behind (a full disk, an interrupt): of
-        # the folders it created, the outermost that holds no other run's saved cell or chunk
-        # goes (one that saved something resumes from it)
+        # a run that finished nothing leaves nothing behind (a full disk, an interrupt): what
+        # it wrote goes, then the folders it created that are left empty (a run that saved a
+        # cell or chunk resumes from it; a nested run's folder stays with its cells)
         for p in planned:
-            if p.created is not None and not _saved_any(p, p.rd.path):
-                _remove_created(p, planned)
+            if p.created is not None and not any(p.rd.cells.rglob("*.parquet")):
+                _remove_created(p)
         raise
     return [p.rd.write_results(p.order, save=p.rd.exists()) for p in planned]
 
@@ -363,29 +365,20 @@ def _plan(r: Run, seeds, limit: int, lanes: bool, on_cell, log) -> _Planned:
     return _Planned(rd, config, order, family, seeds, jobs, progress, _first_missing(rd.path))
 
 
-def _saved_any(p: _Planned, folder: Path) -> bool:
-    """Whether run ``p`` lies in ``folder`` and has saved a cell or chunk."""
-    inside = p.rd.path.absolute().is_relative_to(Path(folder).absolute())
-    return inside and any(p.rd.cells.rglob("*.parquet"))
-
-
-def _remove_created(p: _Planned, planned: list[_Planned]) -> None:
-    """Remove what run ``p`` (which saved nothing) created: the outermost of the folders from
-    its own up to :attr:`_Planned.created` that holds no other run's saved cell or chunk."""
+def _remove_created(p: _Planned) -> None:
+    """Remove what run ``p`` (which saved nothing) wrote, then each folder from its own up to
+    :attr:`_Planned.created` that is left empty (one that holds another run stays)."""
+    for name in ("config.toml", "results.parquet"):
+        (p.rd.path / name).unlink(missing_ok=True)
+    shutil.rmtree(p.rd.cells, ignore_errors=True)
     path, top = p.rd.path.absolute(), p.created.absolute()
-    chosen = None
     for folder in (path, *path.parents):
         if not folder.is_relative_to(top):
             break
-        if any(_saved_any(q, folder) for q in planned if q is not p):
-            break
-        chosen = folder
-    if chosen is not None:
-        shutil.rmtree(chosen, ignore_errors=True)
-    else:  # its own folder holds another run's saved cells: only its own files go
-        for name in ("config.toml", "results.parquet"):
-            (path / name).unlink(missing_ok=True)
-        shutil.rmtree(p.rd.cells, ignore_errors=True)
+        if folder.is_dir():  # a run that failed before its first save made none of its own
+            if any(folder.iterdir()):
+                break
+            folder.rmdir()
 
 
 def _save(p: _Planned, job, done: CellResult, log) -> None:
