@@ -7,7 +7,6 @@ import re
 from pathlib import Path
 
 import numpy as np
-import pyarrow.compute as pc
 import pyarrow.parquet as pq
 import pytest
 
@@ -230,9 +229,17 @@ def test_study_quick_writes_every_file_and_covers_every_reading(tmp_path, cache,
 def test_reproduce_quick_literal_equals_the_table_before_the_defaults_changed(tmp_path, cache):
     """``reproduce --quick --readings literal`` gives ``tests/fixtures/
     reproduce_quick_literal.parquet``, the table computed before the default readings changed,
-    when the literal readings were the defaults: bit for bit, except the hover panels' policy
-    gradient (to 1e-12: its rollouts' sums now run in another order). After the study in this
-    file, whose one-factor readings compiled most of its programs."""
+    when the literal readings were the defaults. After the study in this file, whose one-factor
+    readings compiled most of its programs.
+
+    Every row, and every count, divergence and solver verdict in it, is the pinned one; every
+    float agrees to 1e-10 relative. On the CPU that pinned the table it was bit for bit but for
+    the hover panels' policy gradient (1e-12: its rollouts' sums now run in another order). XLA
+    compiles for the CPU's own vector instructions, so another CPU rounds differently: on an AMD
+    EPYC with AVX2 and no AVX-512, 13 test costs differ by up to 2.4e-14 relative and the
+    funnel's losses by up to 1.1e-12. A changed reading or a wrong loop moves them by far more.
+    The same table bit for bit, on one machine, across executors and chunkings, is checked in
+    ``test_cli_executors.py`` and ``tests/experiments/test_chunks.py``."""
     out = tmp_path / "literal"
     r = cli(
         "reproduce", "--quick", "--readings", "literal", "--quiet", "--workers", "1",
@@ -242,20 +249,13 @@ def test_reproduce_quick_literal_equals_the_table_before_the_defaults_changed(tm
     ours = pq.read_table(out / "results.parquet")
     pinned = pq.read_table(PINNED)
     assert ours.num_rows == pinned.num_rows == 216
-    # every learning method, the expert and the funnel's policy gradient bit for bit; the hover
-    # panels' policy gradient to 1e-12 (its rollouts now run as one column batch, whose sums
-    # differ from the pinned batched products in the last bits), with the same divergences
-    hover_pg = pc.and_(
-        pc.equal(ours["method"], "pg"), pc.invert(pc.equal(ours["scenario"], "funnel"))
-    )
-    assert ours.filter(pc.invert(hover_pg)).equals(pinned.filter(pc.invert(hover_pg)))
-    a, b = ours.filter(hover_pg), pinned.filter(hover_pg)
-    assert a.num_rows == 2 * 2 * 4  # 2 scenarios x 2 seeds x 4 iterations
-    for column in ("test_cost", "test_cost_median"):
-        np.testing.assert_allclose(a[column].to_numpy(), b[column].to_numpy(), rtol=1e-12)
-    assert a.drop_columns(["test_cost", "test_cost_median"]).equals(
-        b.drop_columns(["test_cost", "test_cost_median"])
-    )
+    assert ours.schema.equals(pinned.schema)
+    for column in ours.column_names:
+        a, b = ours[column].to_numpy(), pinned[column].to_numpy()
+        if pa_is_float(ours.schema.field(column).type):
+            np.testing.assert_allclose(a, b, rtol=1e-10, atol=0, equal_nan=True, err_msg=column)
+        else:
+            np.testing.assert_array_equal(a, b, err_msg=column)
     report = (out / "report.md").read_text()
     assert "Readings: literal (delay_mode = fifo" in report
 

@@ -56,15 +56,19 @@ def test_dagger_swings_the_pendulum_up_with_features_and_the_linear_model_cannot
     """examples/pendulum_swingup.toml at 16 seeds (degree-4 features, 12 iterations of 400
     transitions, the best policy so far tested): DAgger's tested policy swings the pendulum up
     from hanging and holds it upright (|θ| < 0.1) for the final quarter of the episode within
-    1.5x the true-model iLQR's cost (295.4) on at least 15 of 16 seeds (measured 15: Gym costs
-    295.4-315.1, seed 8 at 1,228.7).
+    1.5x the true-model iLQR's cost (295.4) on at least 14 of 16 seeds (measured 15 on one CPU:
+    Gym costs 295.4-315.1, seed 8 at 1,228.7; 14 on another, an AMD EPYC with AVX2 and no
+    AVX-512: seed 3 at 457.1 and not upright, seed 12 at 1,183.8).
 
-    Why 16 seeds: which seeds swing up at a given iteration is decided at rounding level. Three
-    computations of the model's Jacobian that agree to ~2e-16 give 15 of 16 (the analytic
-    derivative, ``FeatureMap.jacobian``, what runs), 15 (``jax.jacfwd`` through the features)
-    and 16 (``jax.jacrev``) for the tested policy, and 14, 12 and 16 for the last policy
-    (``benchmarks/swingup_seeds.py``): a model that swung up can lose it at the next
-    iteration, and the best policy so far keeps what it found.
+    Why 16 seeds, and 14 of them: which seeds swing up at a given iteration is decided at
+    rounding level. Three computations of the model's Jacobian that agree to ~2e-16 give 15 of
+    16 (the analytic derivative, ``FeatureMap.jacobian``, what runs), 15 (``jax.jacfwd``
+    through the features) and 16 (``jax.jacrev``) for the tested policy on the first CPU, and
+    14, 12 and 16 for the last policy (``benchmarks/swingup_seeds.py``): a model that swung up
+    can lose it at the next iteration, and the best policy so far keeps what it found. XLA
+    compiles for the CPU's own vector instructions, so another CPU rounds differently and
+    moves the count the same way (the analytic Jacobian's 15 is 14 on the EPYC). The test
+    asks for the lowest count measured, not the best.
 
     The linear model with LQR, the same data and ν, swings up on none of 3 seeds (measured:
     every seed's policies stay near the bottom, costs above 1,000). Batch (ν's data only) is
@@ -75,7 +79,7 @@ def test_dagger_swings_the_pendulum_up_with_features_and_the_linear_model_cannot
     trace = gym.run("dagger", s)
     costs, theta, flights = fly(s, trace.final["best_K"], rollouts=True)
     upright = np.all(np.abs(theta[:, 150:]) < 0.1, axis=1)
-    assert np.sum(upright & (costs <= 1.5 * reference)) >= 15, (costs, reference)
+    assert np.sum(upright & (costs <= 1.5 * reference)) >= 14, (costs, reference)
     np.testing.assert_allclose(trace.rows.test_cost[:, -1], costs, rtol=1e-6)
     assert np.all(np.diff(trace.rows.test_cost, axis=1) <= 0)  # one test episode: the running min
 
