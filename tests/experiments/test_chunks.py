@@ -43,11 +43,11 @@ def test_plan_caps_chunks_for_speed_and_a_task_over_budget_comes_back_in_chunks_
     """30 seeds run in chunks of at most SPEED_SEEDS (3 of 10) whatever the budget; a task
     measures its programs at its own 10 seeds before it runs and, over its share of the budget,
     returns Oversized instead of rows; its seeds then come back as chunks that fit."""
-    from loopid.experiments import execute, tasks
+    from loopid.experiments import cell, tasks
     from loopid.experiments.rundir import RunDir
 
     s = scenario("hover", seeds=30, **SMALL)
-    family = execute.family_of(s)
+    family = cell.family_of(s)
     jobs = tasks.plan(RunDir(tmp_path), [(s, "dagger-t")], np.arange(30), family)
     assert chunks.SPEED_SEEDS == 12
     assert [job.part for job in jobs] == [(0, 10), (10, 20), (20, 30)]
@@ -59,9 +59,9 @@ def test_plan_caps_chunks_for_speed_and_a_task_over_budget_comes_back_in_chunks_
 
     measured = copy.copy(family)
     measured.memory = memory
-    monkeypatch.setattr(execute, "family_of", lambda s: measured)
-    result = execute.run_chunk(s, "dagger-t", jobs[1].seeds, limit=6000)
-    assert result == execute.Oversized(10_000) and asked == [10]
+    monkeypatch.setattr(cell, "family_of", lambda s: measured)
+    result = cell.run_chunk(s, "dagger-t", jobs[1].seeds, limit=6000)
+    assert result == cell.Oversized(10_000) and asked == [10]
     # 6 seeds fit 6,000 bytes: positions 10..19 as 2 chunks of 5
     again = tasks.resplit(jobs[1], result.nbytes, np.arange(30), 6000)
     assert [(job.part, len(job.seeds)) for job in again] == [((10, 15), 5), ((15, 20), 5)]

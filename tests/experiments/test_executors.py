@@ -1,7 +1,7 @@
 """The local executor's worker processes and threads: order, progress, results, failures (no JAX
 work).
 
-The cell function here stands in for :func:`loopid.experiments.execute.run_cell`: it reports
+The cell function here stands in for :func:`loopid.experiments.cell.run_cell`: it reports
 every iteration and returns a small table, so the pool's mechanics are tested in seconds; the
 CLI test ``test_worker_processes_give_the_in_process_table`` checks real cells.
 """

@@ -8,6 +8,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+import loopid.experiments.cell as cell
 import loopid.experiments.execute as execute
 from loopid.experiments.results import read_table
 from loopid.experiments.scenarios import scenario
@@ -23,7 +24,7 @@ METHODS = ["expert"]
 def counted(monkeypatch):
     """Count the cells actually computed (run_cells calls the family's run once per cell)."""
     calls = []
-    real = execute.family_of
+    real = cell.family_of
 
     def family_of(s):
         family = real(s)
@@ -36,7 +37,7 @@ def counted(monkeypatch):
         counted.run = counting
         return counted
 
-    monkeypatch.setattr(execute, "family_of", family_of)
+    monkeypatch.setattr(cell, "family_of", family_of)
     return calls
 
 

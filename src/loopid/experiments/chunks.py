@@ -9,7 +9,7 @@ A cell runs all its seeds as one vmapped program, so its memory grows with the s
   (:func:`loopid.algorithms.loop.program_memory`): arguments + outputs + temporaries − donated
   buffers, the largest over the programs a cell runs one after another. Each task computes it
   for its own seeds, in the process that runs it, before it runs
-  (:func:`loopid.experiments.execute.run_chunk`): the compilation it needs is the one the task
+  (:func:`loopid.experiments.cell.run_chunk`): the compilation it needs is the one the task
   then runs (JAX reuses it), so it costs nothing extra.
 - **Budget** (:func:`budget`): ``--memory GB`` for all the processes computing at once, else
   :data:`DEFAULT_FRACTION` of the memory this machine has available (``MemAvailable``, within a

@@ -14,8 +14,9 @@ directory already there holds the same configuration), then:
 2. hands the tasks (whole cells and chunks) to an executor
    (:mod:`loopid.experiments.executors`). A task first compiles its programs and reads their
    memory from them (the family's ``memory``); one that needs more than its process's share of
-   the budget returns :class:`Oversized` instead of running, and its seeds go to a second round
-   in chunks sized from that measurement (:func:`loopid.experiments.chunks.chunk_size`). So the
+   the budget returns :class:`~loopid.experiments.cell.Oversized` instead of running, and its
+   seeds go to a second round in chunks sized from that measurement
+   (:func:`loopid.experiments.chunks.chunk_size`). So the
    estimate costs nothing extra: it is the compilation the task runs, in the process that runs
    it. Each finished task is saved the moment it is in, atomically: a cell's artifacts, then
    its rows; a chunk's files, merged into its cell's once all are in;
@@ -43,8 +44,9 @@ import numpy as np
 import pyarrow as pa
 
 import loopid
-from loopid.algorithms.loop import Row
 from loopid.experiments import artifacts, backend, chunks
+from loopid.experiments.cell import CellResult, Oversized, run_chunk
+from loopid.experiments.cell import run_cell as run_cell  # also importable from here
 from loopid.experiments.checks import (
     Methods,
     check_cells,
@@ -62,12 +64,11 @@ from loopid.experiments.executors import (
 )
 from loopid.experiments.families import FAMILIES, Family, family_of, scenario_names
 from loopid.experiments.report import cell_times, report_text
-from loopid.experiments.results import trace_table, with_metadata, write_atomic_bytes
+from loopid.experiments.results import with_metadata, write_atomic_bytes
 from loopid.experiments.rundir import RunDir, normalized
 from loopid.experiments.tasks import (
     ProgressFactory,
     lane_sets,
-    method_names,
     plan,
     progress_bars,
     resplit,
@@ -92,105 +93,6 @@ def resolved_config(scenarios: Sequence[Scenario], methods: Methods, seeds) -> d
         },
         "scenario": {s.name: s.to_dict() for s in scenarios},
     }
-
-
-class CellResult(NamedTuple):
-    """A finished cell: its rows (with its timings in the table's metadata) and what it ended
-    with (:attr:`loopid.algorithms.loop.Trace.final`, saved by :mod:`.artifacts`)."""
-
-    table: pa.Table
-    seeds: np.ndarray
-    final: dict
-    shared: dict
-
-
-def run_cell(
-    s: Scenario,
-    method: str | tuple[str, ...],
-    seeds,
-    progress: Callable[[int, Row], None] | None = None,
-    *,
-    started: float | None = None,
-) -> CellResult | dict[str, CellResult]:
-    """One cell: its rows (:func:`loopid.experiments.results.trace_table`), with its timings in
-    the table's metadata: ``wall_s`` (the whole cell) and ``first_s`` (until iteration 2 was
-    done: compilation plus two iterations), both from ``started`` (a ``time.perf_counter()``;
-    default now); and its final policies and models.
-
-    A tuple of methods is a lane set (the family's ``lane_sets``, run by its ``run_lanes``):
-    ``{method: CellResult}``, each cell's ``wall_s`` and ``first_s`` the lane set's times shared
-    equally among its methods (metadata ``lane_set`` names them), so that a lane set's cells
-    add up to its time."""
-    t0 = time.perf_counter() if started is None else started
-    first = [None]
-
-    def tick(n: int, row: Row) -> None:
-        if n == min(2, s.iterations):
-            first[0] = time.perf_counter() - t0
-        if progress is not None:
-            progress(n, row)
-
-    family = family_of(s)
-    if isinstance(method, tuple):
-        traces = family.run_lanes(method, s, seeds, progress=tick)
-    else:
-        traces = {method: family.run(method, s, seeds, progress=tick)}
-    wall = time.perf_counter() - t0
-    results = {}
-    for m, trace in traces.items():
-        share = len(traces)
-        meta = {"wall_s": f"{wall / share:.3f}", "first_s": f"{(first[0] or wall) / share:.3f}"}
-        if isinstance(method, tuple):
-            meta["lane_set"] = ",".join(method)
-        table = with_metadata(trace_table(s.name, m, trace), **meta)
-        shared = family.shared(s, m)
-        results[m] = CellResult(table, np.asarray(trace.seeds), dict(trace.final or {}), shared)
-    return results if isinstance(method, tuple) else results[method]
-
-
-def _out_of_memory(e: BaseException) -> bool:
-    text = str(e)
-    return isinstance(e, MemoryError) or "RESOURCE_EXHAUSTED" in text or "Out of memory" in text
-
-
-class Oversized(NamedTuple):
-    """What a task returns instead of running when its programs need ``nbytes`` (at its seed
-    count), more than its process's share of the memory budget."""
-
-    nbytes: int
-
-
-def run_chunk(
-    s: Scenario,
-    method: str | tuple[str, ...],
-    seeds,
-    progress: Callable[[int, Row], None] | None = None,
-    *,
-    limit: int | None = None,
-) -> CellResult | dict[str, CellResult] | Oversized:
-    """What an executor runs: :func:`run_cell` on a whole cell's or one chunk's seeds (of one
-    method, or of a lane set's); an out-of-memory error from JAX becomes one line saying what
-    to lower.
-
-    ``limit``: the bytes this process may use. For a family with a memory estimate the task
-    first compiles its programs and reads their peak from them (``family.memory``, the same
-    compilation the run then reuses), and returns :class:`Oversized` instead of running when
-    it is above ``limit``."""
-    family = family_of(s)
-    started = time.perf_counter()  # the cell's time includes the compilation measured here
-    if limit is not None and family.memory is not None:
-        nbytes = int(family.memory(s, method, len(seeds)))
-        if nbytes > limit:
-            return Oversized(nbytes)
-    try:
-        return run_cell(s, method, seeds, progress, started=started)
-    except Exception as e:
-        if _out_of_memory(e):
-            raise ValueError(
-                f"{s.name} / {method_names(method)}: out of memory running {len(seeds)} seeds at "
-                "once; lower --memory (chunks are sized to it) or --workers"
-            ) from None
-        raise
 
 
 class Run(NamedTuple):

@@ -29,7 +29,7 @@ rounding).
 
 An executor is a generator: ``executor(jobs, fn, on_job=..., **options)`` yields ``(job,
 result)`` as jobs finish (in any order), ``result`` being ``fn(scenario, method, seeds,
-progress=...)`` of the job (a cell's chunk: :func:`loopid.experiments.execute.run_chunk`); the
+progress=...)`` of the job (a cell's chunk: :func:`loopid.experiments.cell.run_chunk`); the
 caller saves each at once. A job is one task: a cell whose seeds fit one
 chunk, or one chunk of a larger cell (:mod:`loopid.experiments.chunks`), so local workers and a
 Ray cluster spread a large seed count as they spread cells.
@@ -61,7 +61,8 @@ class Job(NamedTuple):
     part: tuple[int, int] | None = None
 
 
-#: ``fn(scenario, method, seeds, progress=None) -> result`` (:func:`execute.run_chunk`).
+#: ``fn(scenario, method, seeds, progress=None) -> result``
+#: (:func:`loopid.experiments.cell.run_chunk`).
 CellFunction = Callable[..., Any]
 
 
@@ -237,7 +238,7 @@ def _pool_cell(cell: CellFunction, index: int, s, method: str, seeds, messages=N
     with
     ``n = 0`` (no row) when the cell starts and ``n = -1`` (no row) when it has returned, so
     the parent waits for nothing more of it (a task may return before its last iteration: a
-    memory check that sends it back, :class:`loopid.experiments.execute.Oversized`).
+    memory check that sends it back, :class:`loopid.experiments.cell.Oversized`).
 
     The rows are copied to NumPy and sent by a thread of the worker, in order, so the cell's
     loop dispatches its next iteration without waiting for the last one's numbers (on an
