@@ -69,6 +69,37 @@ def test_plan_caps_chunks_for_speed_and_a_task_over_budget_comes_back_in_chunks_
         tasks.resplit(jobs[1], result.nbytes, np.arange(30), 2000)
 
 
+def test_the_jobs_of_one_compiled_program_share_its_key(tmp_path):
+    """``Job.program`` (what the workers wait on while its first job compiles): one method at a
+    time, the helicopter's learning methods share one key per scenario, over their chunks; the
+    expert and the policy gradient have keys of their own, and a lane set's job (another
+    program: its lanes are every method's seeds) another again."""
+    from loopid.algorithms.methods import METHODS
+    from loopid.experiments import tasks
+    from loopid.experiments.families import family_of
+    from loopid.experiments.rundir import RunDir
+
+    panels = [scenario(name, seeds=30, **SMALL) for name in ("hover", "funnel")]
+    todo = [(s, m) for s in panels for m in METHODS]
+    family = family_of(panels[0])
+    one = tasks.plan(RunDir(tmp_path), todo, np.arange(30), family)
+    keys = {(job.scenario.name, job.method): set() for job in one}
+    for job in one:
+        keys[(job.scenario.name, job.method)].add(job.program)
+    assert all(len(k) == 1 for k in keys.values())  # every chunk of a cell: one key
+    for name in ("hover", "funnel"):
+        learning = {keys[(name, m)].pop() for m in METHODS if m not in ("expert", "pg")}
+        alone = [keys[(name, m)].pop() for m in ("expert", "pg")]
+        assert len(learning) == 1 and len({*learning, *alone}) == 3, name
+    assert len({job.program for job in one}) == 6  # none shared across the panels
+    lanes = tasks.plan(
+        RunDir(tmp_path), todo, np.arange(30), family, groups=tasks.lane_sets(family, todo)
+    )
+    lane_set = [job for job in lanes if isinstance(job.method, tuple)]
+    assert len({job.program for job in lane_set}) == 2  # one per panel, over its chunks
+    assert not {job.program for job in lane_set} & {job.program for job in one}
+
+
 def test_stacked_arrays_are_saved_as_their_join_one_piece_at_a_time(tmp_path):
     """A chunked cell's arrays are written piece by piece (artifacts.Stacked): ``np.load`` reads
     back exactly the joined array, with the dtype, beside ordinary arrays; the pieces are read

@@ -7,6 +7,7 @@ CLI test ``test_worker_processes_give_the_in_process_table`` checks real cells.
 """
 
 import os
+import time
 
 import numpy as np
 import pyarrow as pa
@@ -28,6 +29,18 @@ def fake_cell(s, method, seeds, progress=None):
         {"cell": [f"{s.name}/{method}"], "pid": [os.getpid()], "seeds": [len(seeds)],
          "cores": [cores]}
     )  # fmt: skip
+
+
+def timed_cell(s, method, seeds, progress=None):
+    """A cell whose method ``a`` takes 1.5 s an iteration (it "compiles"), any other 10 ms; a
+    table of when it started and when it reported iteration 2 (or ended, with one)."""
+    started = time.time()
+    for n in range(1, s.iterations + 1):
+        time.sleep(1.5 if method == "a" else 0.01)
+        progress(n, {"n": np.asarray(n)})
+        if n == min(2, s.iterations):
+            second = time.time()
+    return pa.table({"started": [started], "second": [second]})
 
 
 def jobs(methods=("a", "b", "c"), iterations=3, seeds=(0, 1)):
@@ -55,6 +68,28 @@ def test_spread_takes_the_families_one_after_another():
     mixed = [mdp[0], *js[:4], mdp[1], mdp[2], *js[4:], mdp[3]]  # the MDP's first in front
     order = [mixed[i] for i in spread(mixed)]
     assert order == [mdp[0], mdp[2], mdp[1], mdp[3], *(js[i] for i in spread(js))]
+
+
+@pytest.mark.parametrize("threads", [False, True])
+def test_cells_of_one_program_wait_while_the_first_compiles(threads):
+    """Two workers; the hover's cells a, b and c share one program, whose first cell is slow to
+    its second iteration (it compiles); e is a hover cell with a program of its own and f the
+    funnel's one cell, both quick. The free worker takes f and then e, and waits instead of
+    starting b or c (which would compile the same program again); they start once a has
+    reported its second iteration. Without progress shown as well."""
+    hover = scenario("hover", iterations=2)
+    js = [Job(hover, m, np.arange(2), program="hover") for m in ("a", "b", "c")]
+    js += [Job(hover, "e", np.arange(2)), Job(scenario("funnel", iterations=1), "f", np.arange(2))]
+    done = {
+        (j.scenario.name, j.method): t.to_pydict()
+        for j, t in run_local(js, timed_cell, workers=2, threads=threads)
+    }
+    assert len(done) == 5
+    compiled = done[("hover", "a")]["second"][0]
+    for other in [("funnel", "f"), ("hover", "e")]:  # the other worker kept busy meanwhile
+        assert done[other]["started"][0] < compiled, other
+    for m in ("b", "c"):
+        assert done[("hover", m)]["started"][0] >= compiled, m
 
 
 @pytest.mark.parametrize("bad", [0, -1, 1.5, "2", True])
@@ -127,7 +162,7 @@ def test_a_failing_cell_raises_in_the_caller(threads):
 
 
 def test_threads_stop_their_cells_when_the_run_stops():
-    """A run stopped after its first cell (an interrupt, a failure, a closed generator): the
+    """A run stopped after its first cells (an interrupt, a failure, a closed generator): the
     cells not started never start, and the running ones stop at their next iteration, before
     ``close`` returns, so nothing goes on computing (on the device) after the run."""
     import threading
@@ -151,8 +186,9 @@ def test_threads_stop_their_cells_when_the_run_stops():
             raise
 
     run = run_local(jobs(methods=("a", "b")), cell, workers=2, threads=True)
-    job, result = next(run)
-    assert job.method == result == "a"
+    for _ in range(3):  # the three scenarios' first cells; the "b" cells start before the last
+        job, result = next(run)
+        assert job.method == result == "a"
     assert running.wait(10)  # a "b" cell is in its loop
     run.close()
     assert started.count("b") == len(stopped) >= 1, (started, stopped)  # every one stopped

@@ -7,7 +7,8 @@ rounding).
   share a compiled program (DAgger, Batch and Abbeel with the same scenario and ν) reuse it.
   ``workers > 1``: that many worker processes (standard library ``concurrent.futures``, spawned),
   each running one cell at a time, in the order of :func:`spread`; a worker that meets a program
-  another one already compiled loads it from the shared persistent cache. On a CPU each worker
+  another one already compiled loads it from the shared persistent cache, and the cells that
+  share a program wait while the first of them compiles it (:class:`_Warmup`). On a CPU each worker
   is pinned to its own share of the cores (:func:`core_shares`), so that the XLA threads of one
   do not take turns with another's (the funnel's policy gradient on 2 cores, two workers: 47 s
   pinned, 52 s not). Each process's BLAS runs on one thread (:mod:`loopid`): with a BLAS thread
@@ -39,7 +40,7 @@ import os
 import queue
 import threading
 import time
-from collections.abc import Callable, Iterator, Sequence
+from collections.abc import Callable, Hashable, Iterator, Sequence
 from contextlib import contextmanager, nullcontext
 from pathlib import Path
 from typing import Any, NamedTuple
@@ -51,14 +52,16 @@ EXECUTORS = ("local", "ray")
 
 class Job(NamedTuple):
     """One task: a scenario (any family's config), a method (or a lane set's tuple of methods,
-    :mod:`loopid.experiments.tasks`), the seeds it runs (a whole cell's, or one chunk's) and
+    :mod:`loopid.experiments.tasks`), the seeds it runs (a whole cell's, or one chunk's),
     ``part``: the chunk's ``(start, stop)`` positions in the run's seed list (None for a whole
-    cell)."""
+    cell), and ``program``: jobs with the same one run the same compiled programs (None: the
+    scenario's and method's own)."""
 
     scenario: Any
     method: str | tuple[str, ...]
     seeds: Any = None
     part: tuple[int, int] | None = None
+    program: Hashable | None = None
 
 
 #: ``fn(scenario, method, seeds, progress=None) -> result``
@@ -172,10 +175,10 @@ def run_local(
 def spread(jobs: Sequence[Job]) -> list[int]:
     """The order in which parallel workers take the jobs: family by family (the type of their
     scenarios, in the order they first appear), the first job of each scenario, then the
-    others in their order. Workers starting together then compile different programs, and a
-    worker reaches a scenario's later cells once another has compiled its program into the
-    shared cache (round-robin would have two workers compile the same program at once); a
-    second family's cells (``run_all``) fill the workers the first leaves idle at its end."""
+    others in their order. Workers starting together then compile different programs, and the
+    cells that share a program start once the first has compiled it into the shared cache
+    (:class:`_Warmup`; round-robin would have two workers compile the same program at once); a
+    second family's cells (``run_all``) fill the workers the first leaves idle."""
     families: dict[type, list[int]] = {}
     for i, job in enumerate(jobs):
         families.setdefault(type(job.scenario), []).append(i)
@@ -231,40 +234,38 @@ def _init_worker(
     threading.Thread(target=watch, daemon=True).start()
 
 
-def _pool_cell(cell: CellFunction, index: int, s, method: str, seeds, messages=None, stop=None):
+def _pool_cell(
+    cell: CellFunction, index: int, s, method: str, seeds, rows: bool, messages=None, stop=None
+):
     """One cell in a worker: a process, or a thread given its ``messages`` queue and its pool's
     ``stop`` event (the cell then ends at its next iteration once the event is set:
-    :mod:`loopid.experiments.threads`). Progress goes back to the parent as ``(index, n, row)``,
-    with
-    ``n = 0`` (no row) when the cell starts and ``n = -1`` (no row) when it has returned, so
-    the parent waits for nothing more of it (a task may return before its last iteration: a
-    memory check that sends it back, :class:`loopid.experiments.cell.Oversized`).
+    :mod:`loopid.experiments.threads`). Progress goes back to the parent as ``(index, n, row)``
+    (``row`` None unless ``rows``), with ``n = 0`` (no row) when the cell starts and ``n = -1``
+    (no row) when it has returned, so the parent waits for nothing more of it (a task may
+    return before its last iteration: a memory check that sends it back,
+    :class:`loopid.experiments.cell.Oversized`).
 
     The rows are copied to NumPy and sent by a thread of the worker, in order, so the cell's
     loop dispatches its next iteration without waiting for the last one's numbers (on an
     accelerator, a copy to the host waits for the device)."""
-    messages = messages if messages is not None else _WORKER.get("messages")
-    if messages is None:
-        if stop is None:
-            return cell(s, method, seeds)
-        return cell(s, method, seeds, progress=stoppable(None, stop))
-    rows = _RowSender(messages, index)
+    messages = messages if messages is not None else _WORKER["messages"]
+    sender = _RowSender(messages, index, copy=rows)
     messages.put((index, 0, None))  # started: the parent shows its bar from now on
     try:
-        progress = rows.put if stop is None else stoppable(rows.put, stop)
+        progress = sender.put if stop is None else stoppable(sender.put, stop)
         result = cell(s, method, seeds, progress=progress)
     finally:
-        rows.close(drop=stop is not None and stop.is_set())  # every row sent, unless stopped
+        sender.close(drop=stop is not None and stop.is_set())  # every row sent, unless stopped
     messages.put((index, -1, None))  # returned: after every progress message of this cell
     return result
 
 
 class _RowSender:
     """A thread that sends ``(index, n, row)`` to ``messages`` in the order ``put`` was called,
-    each row's leaves copied to NumPy (:func:`_pool_cell`)."""
+    each row's leaves copied to NumPy (:func:`_pool_cell`); without ``copy``, ``row`` is None."""
 
-    def __init__(self, messages, index: int):
-        self.messages, self.index = messages, index
+    def __init__(self, messages, index: int, copy: bool = True):
+        self.messages, self.index, self.copy = messages, index, copy
         self.pending: queue.Queue = queue.Queue()
         self.thread = threading.Thread(target=self._send, daemon=True)
         self.thread.start()
@@ -289,7 +290,8 @@ class _RowSender:
 
         while (item := self.pending.get()) is not None:
             n, row = item
-            self.messages.put((self.index, n, jax.tree_util.tree_map(np.asarray, row)))
+            row = jax.tree_util.tree_map(np.asarray, row) if self.copy else None
+            self.messages.put((self.index, n, row))
 
 
 def _process_pool(workers: int, messages):
@@ -321,28 +323,31 @@ def _process_pool(workers: int, messages):
 
 
 def _run_pool(jobs, cell, on_job, workers, threads=False) -> Iterator[tuple[Job, Any]]:
+    """The jobs on ``workers`` worker processes (or threads), each started once a worker is free
+    and its program is warm (:class:`_Warmup`), in the order of :func:`spread`."""
     import multiprocessing
     from concurrent.futures import FIRST_COMPLETED, wait
 
-    if on_job is None:
-        messages = None
-    else:  # a queue worker processes can write to, or this process's own for threads
-        messages = queue.Queue() if threads else multiprocessing.get_context("spawn").Queue()
+    # progress comes back whether or not it is shown: it says when a program has compiled
+    messages = queue.Queue() if threads else multiprocessing.get_context("spawn").Queue()
     callbacks: dict[int, Callable | None] = {}
     seen: dict[int, int] = {}  # the last iteration reported per job
+    warmup = _Warmup(jobs)
 
     def deliver(message) -> None:
         index, n, row = message
         if index not in callbacks:
-            callbacks[index] = on_job(jobs[index])
+            callbacks[index] = on_job(jobs[index]) if on_job is not None else None
         seen[index] = jobs[index].scenario.iterations if n < 0 else n
+        if n >= 2 or n < 0:
+            warmup.warm(index)
         if n > 0 and callbacks[index] is not None:
             callbacks[index](n, row)
 
     def drain(until: int | None = None) -> None:
         """Deliver the progress messages that arrived; with ``until``, first wait (up to 5 s)
         for that job's last iteration, which may still be in flight when its result is in."""
-        while messages is not None:
+        while True:
             try:
                 waiting = until is not None and seen.get(until, 0) < jobs[until].scenario.iterations
                 deliver(messages.get(timeout=5.0) if waiting else messages.get_nowait())
@@ -351,27 +356,69 @@ def _run_pool(jobs, cell, on_job, workers, threads=False) -> Iterator[tuple[Job,
 
     pool = DaemonThreads(workers) if threads else _process_pool(workers, messages)
     extra = (messages, pool.stop) if threads else ()  # a process has its own (_init_worker)
+    futures: dict = {}
+
+    def start_free_workers() -> None:
+        while len(futures) < workers and (i := warmup.next()) is not None:
+            job = jobs[i]
+            args = (cell, i, job.scenario, job.method, job.seeds, on_job is not None, *extra)
+            futures[pool.submit(_pool_cell, *args)] = i
+
     try:
-        futures = {
-            pool.submit(
-                _pool_cell, cell, i, jobs[i].scenario, jobs[i].method, jobs[i].seeds, *extra
-            ): i
-            for i in spread(jobs)
-        }
-        pending = set(futures)
-        while pending:
-            done, pending = wait(pending, timeout=0.1, return_when=FIRST_COMPLETED)
+        start_free_workers()
+        while futures:
+            done, _ = wait(set(futures), timeout=0.1, return_when=FIRST_COMPLETED)
             drain()
+            finished = []
             for future in sorted(done, key=futures.get):
+                index = futures.pop(future)
                 result = future.result()
-                drain(until=futures[future])
-                yield jobs[futures[future]], result
+                drain(until=index)
+                warmup.warm(index)
+                finished.append((jobs[index], result))
+            start_free_workers()  # before the caller saves what finished
+            yield from finished
     finally:
         processes = list((getattr(pool, "_processes", None) or {}).values())
         pool.shutdown(wait=False, cancel_futures=True)
         for p in processes:  # an interrupted run stops its workers now, not after their cells
             if p.is_alive():
                 p.terminate()
+
+
+class _Warmup:
+    """Which job a free worker starts next: the first in :func:`spread`'s order whose program
+    (:attr:`Job.program`) is warm, or has no job running yet.
+
+    A program's first job compiles it (and writes it to the shared compilation cache); the
+    program is warm once that job has reported its second iteration (or returned). Until then
+    its other jobs wait and the free worker takes another program's, or waits too: two workers
+    compiling the same program at once would each pay for it (``reproduce --quick`` on two
+    cores compiled the funnel's loop program in both workers, about 37 s each, before this
+    rule)."""
+
+    def __init__(self, jobs: Sequence[Job]):
+        self.keys = [
+            job.program if job.program is not None else (job.scenario.name, job.method)
+            for job in jobs
+        ]
+        self.order = spread(jobs)
+        self.ready: set = set()  # warm programs
+        self.warming: set = set()  # programs whose first job runs
+
+    def next(self) -> int | None:
+        for i in self.order:
+            key = self.keys[i]
+            if key in self.ready or key not in self.warming:
+                self.order.remove(i)
+                if key not in self.ready:
+                    self.warming.add(key)
+                return i
+        return None
+
+    def warm(self, index: int) -> None:
+        self.warming.discard(self.keys[index])
+        self.ready.add(self.keys[index])
 
 
 def _ray_cell(cell: CellFunction, s, method: str, seeds, cache_dir: str):

@@ -66,15 +66,24 @@ def plan(rd: RunDir, todo, seeds: np.ndarray, family: Family, groups=None) -> li
                     same.setdefault(missing[(name, m)], []).append(m)
                 for ms in same.values():
                     tasks.append((configs[name], ms[0] if len(ms) == 1 else tuple(ms)))
+    # the methods a lane set can hold share a compiled program, run together or one at a time
+    shared = {
+        (name, m): (name, lane_set)
+        for name, sets in lane_sets(family, todo).items()
+        for lane_set in sets
+        for m in lane_set
+    }
     jobs = []
     for s, m in tasks:
-        left = list(missing[(s.name, m if isinstance(m, str) else m[0])])
-        jobs += jobs_of(s, m, chunks.split(seeds, left, min(len(left), most), least))
+        first = m if isinstance(m, str) else m[0]
+        left = list(missing[(s.name, first)])
+        parts = chunks.split(seeds, left, min(len(left), most), least)
+        jobs += jobs_of(s, m, parts, program=(*shared[(s.name, first)], isinstance(m, tuple)))
     return jobs
 
 
-def jobs_of(s: Scenario, method: str | tuple, parts: list[chunks.Chunk]) -> list[Job]:
-    return [Job(s, method, c.seeds, (c.start, c.stop)) for c in parts]
+def jobs_of(s: Scenario, method: str | tuple, parts: list[chunks.Chunk], program=None) -> list[Job]:
+    return [Job(s, method, c.seeds, (c.start, c.stop), program) for c in parts]
 
 
 def resplit(job: Job, nbytes: int, seeds: np.ndarray, limit: int) -> list[Job]:
@@ -84,7 +93,8 @@ def resplit(job: Job, nbytes: int, seeds: np.ndarray, limit: int) -> list[Job]:
     ``MIN_CHUNK`` do."""
     where = f"{job.scenario.name} / {method_names(job.method)}"
     size = chunks.chunk_size(nbytes, len(job.seeds), limit, where)
-    return jobs_of(job.scenario, job.method, chunks.split(seeds, list(range(*job.part)), size))
+    parts = chunks.split(seeds, list(range(*job.part)), size)
+    return jobs_of(job.scenario, job.method, parts, job.program)
 
 
 def progress_bars(rd: RunDir, todo, seeds: np.ndarray, on_cell: ProgressFactory | None):
