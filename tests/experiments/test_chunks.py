@@ -65,6 +65,7 @@ def test_plan_caps_chunks_for_speed_and_a_task_over_budget_comes_back_in_chunks_
     # 6 seeds fit 6,000 bytes: positions 10..19 as 2 chunks of 5
     again = tasks.resplit(jobs[1], result.nbytes, np.arange(30), 6000)
     assert [(job.part, len(job.seeds)) for job in again] == [((10, 15), 5), ((15, 20), 5)]
+    assert {job.program for job in again} == {(*jobs[1].program[:-1], 5)}  # other programs
     with pytest.raises(ValueError, match=r"^hover / dagger-t: a chunk of 3 seeds needs about"):
         tasks.resplit(jobs[1], result.nbytes, np.arange(30), 2000)
 
@@ -98,6 +99,13 @@ def test_the_jobs_of_one_compiled_program_share_its_key(tmp_path):
     lane_set = [job for job in lanes if isinstance(job.method, tuple)]
     assert len({job.program for job in lane_set}) == 2  # one per panel, over its chunks
     assert not {job.program for job in lane_set} & {job.program for job in one}
+    # a family that groups nothing (each method alone): a key per method
+    from loopid.experiments.families.mdp import MDP_SCENARIOS
+
+    mdp = MDP_SCENARIOS["mdp-random"]
+    todo = [(mdp, m) for m in ("dagger", "batch")]
+    jobs = tasks.plan(RunDir(tmp_path / "mdp"), todo, np.arange(2), family_of(mdp))
+    assert len({job.program for job in jobs}) == 2
 
 
 def test_stacked_arrays_are_saved_as_their_join_one_piece_at_a_time(tmp_path):

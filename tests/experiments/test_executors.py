@@ -32,15 +32,15 @@ def fake_cell(s, method, seeds, progress=None):
 
 
 def timed_cell(s, method, seeds, progress=None):
-    """A cell whose method ``a`` takes 1.5 s an iteration (it "compiles"), any other 10 ms; a
-    table of when it started and when it reported iteration 2 (or ended, with one)."""
+    """A cell whose method ``a`` takes 2 s an iteration (it "compiles"), any other 10 ms; a
+    table of when it started, reported iteration 2 (or ended, with one) and ended."""
     started = time.time()
     for n in range(1, s.iterations + 1):
-        time.sleep(1.5 if method == "a" else 0.01)
+        time.sleep(2.0 if method == "a" else 0.01)
         progress(n, {"n": np.asarray(n)})
         if n == min(2, s.iterations):
             second = time.time()
-    return pa.table({"started": [started], "second": [second]})
+    return pa.table({"started": [started], "second": [second], "ended": [time.time()]})
 
 
 def jobs(methods=("a", "b", "c"), iterations=3, seeds=(0, 1)):
@@ -76,8 +76,8 @@ def test_cells_of_one_program_wait_while_the_first_compiles(threads):
     its second iteration (it compiles); e is a hover cell with a program of its own and f the
     funnel's one cell, both quick. The free worker takes f and then e, and waits instead of
     starting b or c (which would compile the same program again); they start once a has
-    reported its second iteration. Without progress shown as well."""
-    hover = scenario("hover", iterations=2)
+    reported its second iteration, before a ends. Without progress shown as well."""
+    hover = scenario("hover", iterations=3)
     js = [Job(hover, m, np.arange(2), program="hover") for m in ("a", "b", "c")]
     js += [Job(hover, "e", np.arange(2)), Job(scenario("funnel", iterations=1), "f", np.arange(2))]
     done = {
@@ -90,6 +90,7 @@ def test_cells_of_one_program_wait_while_the_first_compiles(threads):
         assert done[other]["started"][0] < compiled, other
     for m in ("b", "c"):
         assert done[("hover", m)]["started"][0] >= compiled, m
+    assert done[("hover", "b")]["started"][0] < done[("hover", "a")]["ended"][0]
 
 
 @pytest.mark.parametrize("bad", [0, -1, 1.5, "2", True])

@@ -55,7 +55,7 @@ class Job(NamedTuple):
     :mod:`loopid.experiments.tasks`), the seeds it runs (a whole cell's, or one chunk's),
     ``part``: the chunk's ``(start, stop)`` positions in the run's seed list (None for a whole
     cell), and ``program``: jobs with the same one run the same compiled programs (None: the
-    scenario's and method's own)."""
+    scenario's and method's own; jobs with different ones may share some)."""
 
     scenario: Any
     method: str | tuple[str, ...]
@@ -369,15 +369,22 @@ def _run_pool(jobs, cell, on_job, workers, threads=False) -> Iterator[tuple[Job,
         while futures:
             done, _ = wait(set(futures), timeout=0.1, return_when=FIRST_COMPLETED)
             drain()
-            finished = []
+            finished, error = [], None
             for future in sorted(done, key=futures.get):
                 index = futures.pop(future)
-                result = future.result()
+                try:
+                    result = future.result()
+                except BaseException as e:  # the cells finished beside it are still handed over
+                    error = e
+                    break
                 drain(until=index)
                 warmup.warm(index)
                 finished.append((jobs[index], result))
-            start_free_workers()  # before the caller saves what finished
+            if error is None:
+                start_free_workers()  # before the caller saves what finished
             yield from finished
+            if error is not None:
+                raise error
     finally:
         processes = list((getattr(pool, "_processes", None) or {}).values())
         pool.shutdown(wait=False, cancel_futures=True)
@@ -393,9 +400,9 @@ class _Warmup:
     A program's first job compiles it (and writes it to the shared compilation cache); the
     program is warm once that job has reported its second iteration (or returned). Until then
     its other jobs wait and the free worker takes another program's, or waits too: two workers
-    compiling the same program at once would each pay for it (``reproduce --quick`` on two
-    cores compiled the funnel's loop program in both workers, about 37 s each, before this
-    rule)."""
+    compiling the same program at once would each pay for it, each slowed by the other. Jobs
+    start only while the caller takes results (the generator runs), so a worker that finishes
+    while the caller saves a cell waits for that save."""
 
     def __init__(self, jobs: Sequence[Job]):
         self.keys = [

@@ -66,9 +66,9 @@ def plan(rd: RunDir, todo, seeds: np.ndarray, family: Family, groups=None) -> li
                     same.setdefault(missing[(name, m)], []).append(m)
                 for ms in same.values():
                     tasks.append((configs[name], ms[0] if len(ms) == 1 else tuple(ms)))
-    # the methods a lane set can hold share a compiled program, run together or one at a time
+    # the methods a lane set can hold share a compiled program when run one at a time
     shared = {
-        (name, m): (name, lane_set)
+        (name, m): lane_set
         for name, sets in lane_sets(family, todo).items()
         for lane_set in sets
         for m in lane_set
@@ -78,12 +78,19 @@ def plan(rd: RunDir, todo, seeds: np.ndarray, family: Family, groups=None) -> li
         first = m if isinstance(m, str) else m[0]
         left = list(missing[(s.name, first)])
         parts = chunks.split(seeds, left, min(len(left), most), least)
-        jobs += jobs_of(s, m, parts, program=(*shared[(s.name, first)], isinstance(m, tuple)))
+        lanes = isinstance(m, tuple)  # a lane set's program is not its methods' one at a time
+        program = (s.name, m if lanes else shared.get((s.name, m), (m,)), lanes)
+        jobs += jobs_of(s, m, parts, program)
     return jobs
 
 
 def jobs_of(s: Scenario, method: str | tuple, parts: list[chunks.Chunk], program=None) -> list[Job]:
-    return [Job(s, method, c.seeds, (c.start, c.stop), program) for c in parts]
+    """A task per chunk; ``program`` (:attr:`Job.program`, without the seed count): the key of
+    the programs the task runs, completed with its chunk's seed count (None: its own)."""
+    return [
+        Job(s, method, c.seeds, (c.start, c.stop), program and (*program, len(c.seeds)))
+        for c in parts
+    ]
 
 
 def resplit(job: Job, nbytes: int, seeds: np.ndarray, limit: int) -> list[Job]:
@@ -94,7 +101,7 @@ def resplit(job: Job, nbytes: int, seeds: np.ndarray, limit: int) -> list[Job]:
     where = f"{job.scenario.name} / {method_names(job.method)}"
     size = chunks.chunk_size(nbytes, len(job.seeds), limit, where)
     parts = chunks.split(seeds, list(range(*job.part)), size)
-    return jobs_of(job.scenario, job.method, parts, job.program)
+    return jobs_of(job.scenario, job.method, parts, job.program and job.program[:-1])
 
 
 def progress_bars(rd: RunDir, todo, seeds: np.ndarray, on_cell: ProgressFactory | None):
