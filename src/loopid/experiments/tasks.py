@@ -55,6 +55,7 @@ def plan(rd: RunDir, todo, seeds: np.ndarray, family: Family, groups=None) -> li
         (s.name, m): tuple(chunks.ChunkFiles(rd.cells, s.name, m).missing(len(seeds)))
         for s, m in todo
     }
+    grouped = groups if groups is not None else lane_sets(family, todo)
     tasks = list(todo)
     if groups is not None:
         configs = {s.name: s for s, _ in todo}
@@ -69,8 +70,8 @@ def plan(rd: RunDir, todo, seeds: np.ndarray, family: Family, groups=None) -> li
     # the methods a lane set can hold share a compiled program when run one at a time
     shared = {
         (name, m): lane_set
-        for name, sets in lane_sets(family, todo).items()
-        for lane_set in sets
+        for name, named in grouped.items()
+        for lane_set in named
         for m in lane_set
     }
     jobs = []
