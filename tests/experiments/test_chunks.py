@@ -2,6 +2,7 @@
 after a kill, the memory estimate against a measured peak, and the one-line refusals."""
 
 import copy
+import functools
 import json
 import os
 import re
@@ -70,7 +71,7 @@ def test_plan_caps_chunks_for_speed_and_a_task_over_budget_comes_back_in_chunks_
         tasks.resplit(jobs[1], result.nbytes, np.arange(30), 2000)
 
 
-def test_the_jobs_of_one_compiled_program_share_its_key(tmp_path):
+def test_the_jobs_of_one_compiled_program_share_its_key(tmp_path, monkeypatch):
     """``Job.program`` (what the workers wait on while its first job compiles): one method at a
     time, the helicopter's learning methods share one key per scenario, over their chunks; the
     expert and the policy gradient have keys of their own, and a lane set's job (another
@@ -99,13 +100,19 @@ def test_the_jobs_of_one_compiled_program_share_its_key(tmp_path):
     lane_set = [job for job in lanes if isinstance(job.method, tuple)]
     assert len({job.program for job in lane_set}) == 2  # one per panel, over its chunks
     assert not {job.program for job in lane_set} & {job.program for job in one}
-    # a family that groups nothing (each method alone): a key per method
+    # the MDP family's methods all run its scenario's one program: one key; a family that
+    # groups nothing (each method alone, the default): a key per method
+    from loopid.experiments.families.base import Family
     from loopid.experiments.families.mdp import MDP_SCENARIOS
 
     mdp = MDP_SCENARIOS["mdp-random"]
-    todo = [(mdp, m) for m in ("dagger", "batch")]
-    jobs = tasks.plan(RunDir(tmp_path / "mdp"), todo, np.arange(2), family_of(mdp))
-    assert len({job.program for job in jobs}) == 2
+    todo = [(mdp, m) for m in ("dagger", "batch", "abbeel")]
+    family = family_of(mdp)
+    jobs = tasks.plan(RunDir(tmp_path / "mdp"), todo, np.arange(2), family)
+    assert len(jobs) == 3 and len({job.program for job in jobs}) == 1
+    monkeypatch.setattr(family, "lane_sets", functools.partial(Family.lane_sets, family))
+    jobs = tasks.plan(RunDir(tmp_path / "alone"), todo, np.arange(2), family)
+    assert len({job.program for job in jobs}) == 3
 
 
 def test_stacked_arrays_are_saved_as_their_join_one_piece_at_a_time(tmp_path):

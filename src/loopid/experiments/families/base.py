@@ -128,7 +128,10 @@ class Family(ABC):
         return {}
 
     def lane_sets(self, config, methods: Sequence[str]) -> list[tuple[str, ...]]:
-        """``methods`` grouped as they can run as one lane set (:attr:`run_lanes`): each alone."""
+        """``methods`` grouped by the compiled program they share (default: each alone). A family
+        with :attr:`run_lanes` runs each group as one lane set; run one at a time, a group's
+        cells still share their program, and an executor starts the group's later cells once
+        its first has compiled it (:mod:`loopid.experiments.executors`)."""
         return [(m,) for m in methods]
 
     def field_names(self) -> tuple[str, ...]:

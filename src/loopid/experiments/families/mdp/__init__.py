@@ -76,6 +76,11 @@ class MDPFamily(Family):
     def memory(self, config, method, seeds):
         return program_memory(mdp_setup(config).program, seeds)
 
+    def lane_sets(self, config, methods):
+        """Every method of a scenario runs the scenario's one compiled loop program
+        (:func:`mdp_setup`), with its own policy fractions: one group."""
+        return [tuple(methods)] if methods else []
+
 
 FAMILY = MDPFamily()
 
