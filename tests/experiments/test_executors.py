@@ -13,7 +13,8 @@ import numpy as np
 import pyarrow as pa
 import pytest
 
-from loopid.experiments.executors import Job, check_workers, core_shares, run_local, spread
+from loopid.experiments.executors import Job, check_workers, run_local
+from loopid.experiments.pool import core_shares, spread
 from loopid.experiments.scenarios import scenario
 
 

@@ -28,6 +28,7 @@ diverging trajectory) by more.
 """
 
 import os
+from pathlib import Path
 
 import jax
 
@@ -121,3 +122,19 @@ def pin_device(platform: str, index: int) -> None:
         ids = visible.split(",") if visible else [str(i) for i in range(index + 1)]
         for variable in variables:
             os.environ[variable] = ids[index]
+
+
+def compile_cache(path: str | os.PathLike | None = None) -> str:
+    """Turn on JAX's persistent compilation cache in this process; return its folder.
+
+    ``path`` defaults to ``$LOOPID_JAX_CACHE``, else ``~/.cache/loopid/jax``. Every program that
+    takes at least 0.5 s to compile is stored (the cells' programs take 5-60 s; the many tiny
+    eager operations are not worth a disk entry), so a second run of the same cells, in any
+    process, skips most compilation.
+    """
+    if path is None:
+        path = os.environ.get("LOOPID_JAX_CACHE", str(Path.home() / ".cache" / "loopid" / "jax"))
+    path = str(path)
+    jax.config.update("jax_compilation_cache_dir", path)
+    jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.5)
+    return path
