@@ -7,7 +7,8 @@ it, run the controller on the system, add what it saw to the data, repeat.
 Importing loopid turns on JAX float64 (every hot path is float64), keeps JAX from
 preallocating most of a GPU's memory (``XLA_PYTHON_CLIENT_PREALLOCATE=false`` unless set), makes
 a GPU's programs deterministic (``--xla_gpu_deterministic_ops=true`` added to ``XLA_FLAGS``
-unless they name it), runs
+unless they name it), lets XLA's CPU compiler update a skipped branch's buffers in place
+(``--xla_cpu_copy_insertion_use_region_analysis=true``, the same way), runs
 the BLAS and LAPACK libraries of this process (those behind JAX's CPU linear algebra among them)
 on one thread, and registers the helicopter tasks as Gymnasium environments
 (``loopid/HelicopterHover-v0``, ``loopid/HelicopterHoverDelay-v0``,
@@ -29,9 +30,22 @@ os.environ.setdefault("XLA_PYTHON_CLIENT_PREALLOCATE", "false")
 # test trajectory can amplify to 0.7 %). Deterministic ops made runs with one and with four
 # workers bit for bit equal, for 4 % more time. No effect on a CPU's numbers; a setting the user
 # chose is kept. (XLA_FLAGS is part of JAX's compilation cache key.)
-if not re.search(r"(^|\s)--xla_gpu_deterministic_ops(=|\s|$)", os.environ.get("XLA_FLAGS", "")):
+#
+# On a CPU, XLA's copy insertion analyses a conditional's branches as regions, so that a loop
+# iteration's learning half (skipped by a ``cond`` at iteration 1) updates the learner's
+# statistics in place instead of copying them in and out of the branch: a funnel iteration of 10
+# seeds took 231-251 ms against 267-283 ms (best of 6, two runs each), with the same bits.
+# No effect on a GPU's programs.
+if _missing := [
+    f"--{flag}"
+    for flag in (
+        "xla_gpu_deterministic_ops=true",
+        "xla_cpu_copy_insertion_use_region_analysis=true",
+    )
+    if not re.search(rf"(^|\s)--{flag.split('=')[0]}(=|\s|$)", os.environ.get("XLA_FLAGS", ""))
+]:
     os.environ["XLA_FLAGS"] = " ".join(
-        filter(None, [os.environ.get("XLA_FLAGS", "").strip(), "--xla_gpu_deterministic_ops=true"])
+        filter(None, [os.environ.get("XLA_FLAGS", "").strip(), *_missing])
     )
 
 import jax

@@ -137,21 +137,30 @@ def test_a_run_on_one_gpu_runs_its_workers_as_threads(one_gpu, tmp_path, monkeyp
     assert threads == {threading.main_thread()}
 
 
+DETERMINISTIC = "--xla_gpu_deterministic_ops=true"
+IN_PLACE = "--xla_cpu_copy_insertion_use_region_analysis=true"
+
+
 @pytest.mark.parametrize(
     ("given", "expected"),
     [
-        (None, "--xla_gpu_deterministic_ops=true"),
+        (None, f"{DETERMINISTIC} {IN_PLACE}"),
         (
             "--xla_force_host_platform_device_count=1",
-            "--xla_force_host_platform_device_count=1 --xla_gpu_deterministic_ops=true",
+            f"--xla_force_host_platform_device_count=1 {DETERMINISTIC} {IN_PLACE}",
         ),
-        ("--xla_gpu_deterministic_ops=false", "--xla_gpu_deterministic_ops=false"),
+        ("--xla_gpu_deterministic_ops=false", f"--xla_gpu_deterministic_ops=false {IN_PLACE}"),
+        (
+            "--xla_cpu_copy_insertion_use_region_analysis=false",
+            f"--xla_cpu_copy_insertion_use_region_analysis=false {DETERMINISTIC}",
+        ),
     ],
 )
-def test_import_makes_gpu_programs_deterministic_unless_the_user_chose(given, expected):
+def test_import_sets_loopids_xla_flags_unless_the_user_chose(given, expected):
     """A GPU's table is the same from run to run and with any workers only with deterministic
-    ops (package docstring); importing loopid adds the flag before JAX starts a backend, keeps
-    the user's other flags, and keeps a choice the user made."""
+    ops, and a CPU's loop updates its learner in place with region analysis (package
+    docstring); importing loopid adds both flags before JAX starts a backend, keeps the user's
+    other flags, and keeps a choice the user made."""
     import subprocess
     import sys
 
