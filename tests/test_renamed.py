@@ -17,11 +17,14 @@ RENAMED = [
     ("loopid.experiments.study", "study_text", "study_text"),
     ("loopid.experiments.families.helicopter", "helicopter_plant", "helicopter_plant"),
     ("loopid.experiments.families.helicopter", "nominal_model", "helicopter_nominal_model"),
+    ("loopid.experiments.executors", "spread", "spread"),
+    ("loopid.experiments.executors", "core_shares", "core_shares"),
 ]
 NEW_HOME = {
     "loopid.algorithms.host_loop": "loopid.algorithms.gym_loop",
     "loopid.experiments.study": "loopid.experiments.study_report",
     "loopid.experiments.families.helicopter": "loopid.algorithms.helicopter_plant",
+    "loopid.experiments.executors": "loopid.experiments.pool",
 }
 
 

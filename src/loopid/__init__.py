@@ -24,6 +24,7 @@ from importlib.metadata import PackageNotFoundError, version
 # Effective when set before JAX starts a backend; a value the user set is kept.
 os.environ.setdefault("XLA_PYTHON_CLIENT_PREALLOCATE", "false")
 
+
 # On a GPU the same seeds give the same table from run to run, with any number of workers: XLA's
 # default lets a GPU program's rounding vary between compilations (measured on one H200: two
 # cold runs of the same hover cells differed in 5 of 72 rows, by 2e-16 at first, which a chaotic
@@ -34,23 +35,34 @@ os.environ.setdefault("XLA_PYTHON_CLIENT_PREALLOCATE", "false")
 # On a CPU, XLA's copy insertion analyses a conditional's branches as regions, so that a loop
 # iteration's learning half (skipped by a ``cond`` at iteration 1) updates the learner's
 # statistics in place instead of copying them in and out of the branch: a funnel iteration of 10
-# seeds took 231-251 ms against 267-283 ms (best of 6, two runs each), with the same bits.
-# No effect on a GPU's programs.
+# seeds took 231-251 ms against 266-283 ms (best of 6, two runs each), with the same bits.
+# No effect on a GPU's programs. jaxlib 0.5 and later know the flag (XLA stops a process at a
+# flag it does not know), so older ones go without it.
+def _jaxlib_at_least(major: int, minor: int) -> bool:
+    """Whether the installed jaxlib is at least ``major.minor`` (read without importing it)."""
+    try:
+        found = re.match(r"(\d+)\.(\d+)", version("jaxlib"))
+    except PackageNotFoundError:
+        return False
+    return found is not None and (int(found[1]), int(found[2])) >= (major, minor)
+
+
 if _missing := [
     f"--{flag}"
     for flag in (
         "xla_gpu_deterministic_ops=true",
         "xla_cpu_copy_insertion_use_region_analysis=true",
-    )
+    )[: 2 if _jaxlib_at_least(0, 5) else 1]
     if not re.search(rf"(^|\s)--{flag.split('=')[0]}(=|\s|$)", os.environ.get("XLA_FLAGS", ""))
 ]:
     os.environ["XLA_FLAGS"] = " ".join(
         filter(None, [os.environ.get("XLA_FLAGS", "").strip(), *_missing])
     )
 
-import jax
-import scipy.linalg  # noqa: F401  (the LAPACK that JAX's CPU linear algebra calls, loaded now)
-from threadpoolctl import threadpool_limits
+# the flags above must be set before JAX starts: these imports come after them
+import jax  # noqa: E402
+import scipy.linalg  # noqa: E402, F401  (the LAPACK behind JAX's CPU linear algebra, loaded now)
+from threadpoolctl import threadpool_limits  # noqa: E402
 
 jax.config.update("jax_enable_x64", True)
 

@@ -4,12 +4,15 @@ device it can use, chunks without the CPU's speed cap, a memory budget from the 
 (shared by the threads), and each worker pinned to its own device. The accelerator is simulated
 on a CPU; on an accelerator the CPU's test is skipped and one more checks the real device."""
 
+import functools
 import os
 
 import pytest
 
 from loopid.experiments import backend, chunks
 from loopid.experiments.execute import run_cells
+from loopid.experiments.families import family_of
+from loopid.experiments.families.base import Family
 from loopid.experiments.families.mdp import MDP_SCENARIOS
 
 
@@ -25,7 +28,7 @@ def one_gpu(monkeypatch):
 @pytest.mark.skipif(backend.accelerator(), reason="a CPU's facts; the next test checks a device")
 def test_the_cpu_keeps_its_workers_cap_and_budget():
     assert backend.describe() == "cpu" and backend.device_bytes() is None
-    assert not backend.shared_device()  # never threads on a CPU (executors' docstring)
+    assert not backend.shared_device()  # never threads on a CPU (pool's docstring)
     assert backend.fold_workers(4) == 4
     assert chunks.speed_seeds(40) == chunks.SPEED_SEEDS == 12 and chunks.speed_seeds(5) == 5
     assert chunks.budget(2.0, 2) == 10**9
@@ -104,7 +107,7 @@ def test_a_platform_that_cannot_pin_a_device_runs_threads_in_one_process(monkeyp
 def test_a_run_on_one_gpu_runs_its_workers_as_threads(one_gpu, tmp_path, monkeypatch):
     """--workers 2 on one GPU: no worker process; two threads of this process compute the
     cells, and the table equals one computed in order. The XLA work here runs on the CPU, whose
-    client can deadlock under concurrent executions (executors' docstring), so the threads take
+    client can deadlock under concurrent executions (pool's docstring), so the threads take
     turns through a lock: this test checks where cells run and what is saved, not concurrency
     (on a GPU, benchmarks/device.sh compares a run's table with --workers 1's)."""
     import concurrent.futures
@@ -128,6 +131,10 @@ def test_a_run_on_one_gpu_runs_its_workers_as_threads(one_gpu, tmp_path, monkeyp
     monkeypatch.setattr(execute, "run_chunk", recorded)
     s = MDP_SCENARIOS["mdp-trap"].replace(seeds=3, iterations=3)
     methods = ["dagger", "batch"]
+    # each method its own program, so that both threads start at once (the family's methods
+    # share one, whose second cell would wait for the first's second iteration)
+    family = family_of(s)
+    monkeypatch.setattr(family, "lane_sets", functools.partial(Family.lane_sets, family))
     lines = []
     table = run_cells(tmp_path / "run", [s], methods, workers=2, log=lines.append)
     assert threading.main_thread() not in threads and len(threads) == 2

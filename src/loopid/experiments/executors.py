@@ -5,7 +5,7 @@ rounding).
 - ``local`` (default): on this machine, JAX's persistent compilation cache on
   (:func:`~loopid.experiments.backend.compile_cache`). ``workers = 1``: in this process, one
   cell after another; cells that share a compiled program (DAgger, Batch and Abbeel with the
-  same scenario and ν) reuse it. ``workers > 1``: that many worker processes, each running one
+  same scenario) reuse it. ``workers > 1``: that many worker processes, each running one
   cell at a time, pinned to its own cores on a CPU and to its own device on an accelerator, or,
   where this process holds the only device, threads sharing it; the cells that share a program
   wait while the first of them compiles it (:mod:`loopid.experiments.pool`).
@@ -27,6 +27,7 @@ from collections.abc import Callable, Hashable, Iterator, Sequence
 from contextlib import contextmanager, nullcontext
 from typing import Any, NamedTuple
 
+from loopid._renamed import renamed
 from loopid.experiments.backend import compile_cache
 from loopid.experiments.pool import run_pool
 
@@ -136,7 +137,7 @@ def run_local(
     processes (at most one per job), yielding jobs as they finish; ``cell`` must then be a
     module-level function (it is pickled by name). ``threads``: the workers are threads of this
     process instead, for an accelerator this process holds alone; never on a CPU, whose XLA
-    client can deadlock under concurrent executions (module docstring)."""
+    client can deadlock under concurrent executions (:mod:`loopid.experiments.pool`)."""
     workers = min(check_workers(workers), max(len(jobs), 1))
     if workers > 1:
         cache_dir = "" if threads else jax_cache_dir()
@@ -220,3 +221,13 @@ def executor(name: str) -> Callable[..., Iterator[tuple[Job, Any]]]:
     """The executor called ``name`` (:data:`EXECUTORS`)."""
     check_executor(name)
     return {"local": run_local, "ray": run_ray}[name]
+
+
+#: Names of earlier releases (warn, and go in the next one).
+__getattr__ = renamed(
+    __name__,
+    {
+        "spread": ("loopid.experiments.pool", "spread"),
+        "core_shares": ("loopid.experiments.pool", "core_shares"),
+    },
+)

@@ -196,7 +196,7 @@ def _process_pool(workers: int, messages, cache_dir: str):
 
 
 def run_pool(
-    jobs: Sequence[Job], cell, on_job, workers: int, threads: bool = False, cache_dir: str = ""
+    jobs: Sequence[Job], cell, on_job, workers: int, threads: bool, cache_dir: str
 ) -> Iterator[tuple[Job, Any]]:
     """The jobs on ``workers`` worker processes (or threads), each started once a worker is free
     and its program is warm (:class:`_Warmup`), in the order of :func:`spread`; worker processes

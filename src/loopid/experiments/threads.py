@@ -1,9 +1,9 @@
-"""Worker threads for cells that share one accelerator (:mod:`loopid.experiments.executors`).
+"""Worker threads for cells that share one accelerator (:mod:`loopid.experiments.pool`).
 
 On one GPU the local executor's workers are threads of one process: they share the device, its
 compiled programs and its memory, and each compiles its cells' programs while the others
 compute (XLA compiles outside Python's lock). Only on an accelerator: concurrent executions on
-XLA's CPU client can deadlock (the executors' docstring).
+XLA's CPU client can deadlock (:mod:`loopid.experiments.pool`).
 
 :class:`DaemonThreads` is the part of ``concurrent.futures.ThreadPoolExecutor`` the executor
 uses, written here for two reasons:

@@ -59,8 +59,8 @@ class Family(ABC):
       them.
     - ``memory(config, method, seeds) -> bytes``: the peak memory of one cell's programs for that
       many seeds (:mod:`loopid.experiments.chunks` sizes chunks with it; without it a cell runs
-      all its seeds at once). A family with lane sets also takes a tuple of methods: the peak of
-      their lane set.
+      all its seeds at once). A family with :attr:`run_lanes` also takes a tuple of methods: the
+      peak of their lane set.
     - ``run_lanes(methods, config, seeds, progress=None) -> {method: Trace}``: one group of
       :meth:`lane_sets` as one compiled program over every (method, seed) pair (width an
       accelerator computes at the cost of one), each method's trace the same numbers as
@@ -131,7 +131,7 @@ class Family(ABC):
         """``methods`` grouped by the compiled program they share (default: each alone). A family
         with :attr:`run_lanes` runs each group as one lane set; run one at a time, a group's
         cells still share their program, and an executor starts the group's later cells once
-        its first has compiled it (:mod:`loopid.experiments.executors`)."""
+        its first has compiled it (:mod:`loopid.experiments.pool`)."""
         return [(m,) for m in methods]
 
     def field_names(self) -> tuple[str, ...]:
