@@ -71,3 +71,19 @@ def test_a_killed_lane_set_resumes_to_the_table_of_the_methods_one_by_one(
         meta = metadata(out / "cells" / f"hover__{m}.parquet")
         assert 0 < float(meta["first_s"]) <= float(meta["wall_s"]), (m, meta)
     assert "lane_set" not in metadata(out / "cells" / "hover__expert.parquet")
+
+
+def test_the_rows_check_counts_the_widest_lane_sets_methods(tmp_path, monkeypatch):
+    """A lane set keeps the rows of all its methods' seeds: the check before anything runs
+    counts the widest lane set's methods (4 here), not the scenario's lane sets (2: the
+    learning methods and the expert). 10⁶ iterations of 2 seeds: about 1.6 GB of rows for 2
+    methods, 2.2 GB for 4; a 2 GB budget refuses it at once."""
+    from loopid.experiments import execute
+
+    def planned(*args, **kwargs):
+        raise AssertionError("the run was planned: the rows check let it through")
+
+    monkeypatch.setattr(execute, "plan", planned)
+    huge = HOVER.replace(seeds=2, iterations=10**6)
+    with pytest.raises(ValueError, match="1000000 iterations of 8 seeds a task"):
+        run_cells(tmp_path / "huge", [huge], METHODS, workers=1, lanes=True, memory=2.0)

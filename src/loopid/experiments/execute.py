@@ -260,7 +260,7 @@ def _plan(r: Run, seeds, limit: int, lanes: bool, on_cell, log) -> _Planned:
             else:
                 todo.append((s, m))
     groups = lane_sets(family, todo) if lanes and family.run_lanes is not None else None
-    widest = max((len(g) for g in (groups or {}).values()), default=1)
+    widest = max((len(t) for sets in (groups or {}).values() for t in sets), default=1)
     check_rows(r.scenarios, seeds, limit, widest)
     jobs = plan(rd, todo, seeds, family, groups)
     progress = progress_bars(rd, todo, seeds, on_cell)
