@@ -47,12 +47,12 @@ def _jaxlib_at_least(major: int, minor: int) -> bool:
     return found is not None and (int(found[1]), int(found[2])) >= (major, minor)
 
 
+_XLA_DEFAULTS = ["xla_gpu_deterministic_ops=true"]
+if _jaxlib_at_least(0, 5):
+    _XLA_DEFAULTS.append("xla_cpu_copy_insertion_use_region_analysis=true")
 if _missing := [
     f"--{flag}"
-    for flag in (
-        "xla_gpu_deterministic_ops=true",
-        "xla_cpu_copy_insertion_use_region_analysis=true",
-    )[: 2 if _jaxlib_at_least(0, 5) else 1]
+    for flag in _XLA_DEFAULTS
     if not re.search(rf"(^|\s)--{flag.split('=')[0]}(=|\s|$)", os.environ.get("XLA_FLAGS", ""))
 ]:
     os.environ["XLA_FLAGS"] = " ".join(
