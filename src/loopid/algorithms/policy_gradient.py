@@ -295,8 +295,12 @@ def make_rollouts(
             w, tau = inp
             dx = error_columns(x, target[tau])
             seen, tau_gain, memory = loop.sense(memory, dx, tau)
-            K = base[tau_gain][:, :, None] + gains
-            du = -halving_sum([K[:, j] * seen[j] for j in range(n)])
+            # rollout r's gain column j, base_t[:, j] + gains[:, j, r], formed where it is used,
+            # and du computed once: otherwise XLA wrote all R gains [m, n, R] at every step
+            # (3.3 MB for 10 funnel seeds) and re-read them in each of du's three consumers
+            base_t = base[tau_gain]
+            du = -halving_sum([(base_t[:, j, None] + gains[:, j]) * seen[j] for j in range(n)])
+            du = jax.lax.optimization_barrier(du)
             total = total + quad_Q(dx) + quad_R(du)
             w = jnp.broadcast_to(w[:, None], (w.shape[0], R)) if shared else w
             x, memory = loop.act(step_columns, x, memory, du, w)
