@@ -4,8 +4,9 @@ task advances.
 
 A task (:class:`~loopid.experiments.executors.Job`) is one cell's missing seeds, or one chunk
 of them (:mod:`loopid.experiments.chunks`), of one method, or of a *lane set*: the methods a
-family runs as one program (its ``lane_sets``; every (method, seed) pair a lane), the
-``method`` then being the tuple of them.
+family groups by the compiled program they share (its ``lane_sets``), run as one program where
+the family can (its ``run_lanes``; every (method, seed) pair a lane), the ``method`` then being
+the tuple of them.
 """
 
 from collections.abc import Callable
