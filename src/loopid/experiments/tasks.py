@@ -3,10 +3,11 @@ as one task, a task that came back over its memory share split again, and the pr
 task advances.
 
 A task (:class:`~loopid.experiments.executors.Job`) is one cell's missing seeds, or one chunk
-of them (:mod:`loopid.experiments.chunks`), of one method, or of a *lane set*: the methods a
-family groups by the compiled program they share (its ``lane_sets``), run as one program where
-the family can (its ``run_lanes``; every (method, seed) pair a lane), the ``method`` then being
-the tuple of them.
+of them (:mod:`loopid.experiments.chunks`), of one method, or of several methods run as one
+program: with lanes on and a family that has ``run_lanes``, the methods of one of its *lane
+sets* (``lane_sets``: the methods grouped by the compiled program they share) that miss the
+same seeds, every (method, seed) pair a lane, the ``method`` then being the tuple of them.
+Otherwise a lane set only names the program that its methods' one-method tasks share.
 """
 
 from collections.abc import Callable
