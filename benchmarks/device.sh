@@ -13,8 +13,10 @@
 #    seeds give the same table on one backend whatever the workers).
 # 3. benchmarks/seeds.py at 20 and 1,000 seeds: a hover cell's time per seed once compiled.
 # 4. The tests of what an accelerator changes (the real device, batched LQR, lane sets).
-# Limits in seconds: FULL_S, QUICK_S (each), SEEDS_S, TEST_S (each test file). Python: $PYTHON
-# (default python3).
+# 5. benchmarks/lanes.py on the hover: one method at a time, one lane set, and the lane set in
+#    blocks of iterations (the accelerator's default), after compiling, and their differences.
+# Limits in seconds: FULL_S, QUICK_S (each), SEEDS_S, TEST_S (each test file), LANES_S.
+# Python: $PYTHON (default python3).
 set -u
 out=${1:-${OUT:-/tmp/loopid-device}}
 mkdir -p "$out"
@@ -74,6 +76,9 @@ for f in tests/experiments/test_backend.py tests/algorithms/test_batched_lqr.py 
     tests/experiments/test_lane_sets.py; do
     timed "${TEST_S:-90}" "tests-$(basename "$f" .py)" "$py" -m pytest -q -p no:cacheprovider "$f"
 done
+
+step "5. a hover panel one method at a time, as a lane set, and in blocks of iterations"
+timed "${LANES_S:-150}" lanes "$py" benchmarks/lanes.py --panels hover --seeds 20 --runs 3
 
 step "done"
 rm -rf "$work"

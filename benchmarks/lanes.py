@@ -9,6 +9,11 @@ each), on the same seeds and test noise, alternating ``--runs`` times; printed: 
 max of each and the ratio of the medians (one at a time / lane set: above 1, the lane set is
 faster), and whether the traces are bit for bit the same (they must be).
 
+A third side runs the lane set in blocks of ``--block`` iterations (``run_lanes(block=...)``:
+each block one ``lax.scan``, its rows fetched once; the default of the helicopter's lane sets
+on an accelerator); printed: its ratio to the lane set of one call per iteration, and the
+largest relative difference of its traces from that lane set's (0: bit for bit).
+
     .venv/bin/python benchmarks/lanes.py                     # hover and funnel, 10 seeds
     .venv/bin/python benchmarks/lanes.py --panels hover --seeds 20 --runs 5
 
@@ -24,7 +29,8 @@ import numpy as np
 
 import loopid
 from loopid.algorithms import methods as M
-from loopid.algorithms.loop import run_lanes, run_learning, seed_keys
+from loopid.algorithms.loop import iteration_block, run_lanes, run_learning, seed_keys
+from loopid.experiments.backend import ACCELERATOR_BLOCK
 from loopid.experiments.families import helicopter as H
 from loopid.experiments.families.helicopter import assembly
 from loopid.experiments.scenarios import scenario
@@ -40,7 +46,18 @@ def timed(f) -> tuple[float, object]:
     return time.perf_counter() - t0, out
 
 
-def bench(name: str, seeds: int, runs: int) -> None:
+def largest_difference(a, b) -> float:
+    """The largest relative difference between two lists of traces' float leaves."""
+    worst = 0.0
+    for x, y in zip(jax.tree_util.tree_leaves(a), jax.tree_util.tree_leaves(b), strict=True):
+        x, y = np.asarray(x, np.float64), np.asarray(y, np.float64)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            r = np.where(x == y, 0.0, np.abs(x - y) / np.maximum(np.abs(x), np.abs(y)))
+        worst = max(worst, float(np.nanmax(r, initial=0.0)))
+    return worst
+
+
+def bench(name: str, seeds: int, runs: int, block: int) -> None:
     s = scenario(name, seeds=seeds, iterations=ITERATIONS[name])
     key = H.program_key(s)
     st = assembly._setup(key)
@@ -53,8 +70,8 @@ def bench(name: str, seeds: int, runs: int) -> None:
     options = dict(samples=s.samples, n_test=s.test_trajectories, mode=s.sampling, gamma=s.gamma,
                    test_policy=s.test_policy, program=cell, noise=noise)  # fmt: skip
 
-    def lanes():
-        return run_lanes(plant, agent, nus, schedules, ids, which=which, **options)
+    def lanes(block=1):
+        return run_lanes(plant, agent, nus, schedules, ids, which=which, block=block, **options)
 
     def one_at_a_time():
         return [
@@ -62,13 +79,16 @@ def bench(name: str, seeds: int, runs: int) -> None:
             for f, w in zip(schedules, which, strict=True)
         ]
 
-    lanes(), one_at_a_time()  # compile both
-    times: dict[str, list[float]] = {"one at a time": [], "lane set": []}
+    blocks = f"blocks of {iteration_block(s.iterations, block)}"
+    lanes(), one_at_a_time(), lanes(block)  # compile all three
+    times: dict[str, list[float]] = {"one at a time": [], "lane set": [], blocks: []}
     for _ in range(runs):
         t, alone = timed(one_at_a_time)
         times["one at a time"].append(t)
         t, together = timed(lanes)
         times["lane set"].append(t)
+        t, in_blocks = timed(lambda: lanes(block))
+        times[blocks].append(t)
     same = all(
         np.array_equal(x, y, equal_nan=True)
         for a, b in zip(alone, together, strict=True)
@@ -84,6 +104,11 @@ def bench(name: str, seeds: int, runs: int) -> None:
               f"max {max(ts):7.2f} s")  # fmt: skip
     ratio = statistics.median(times["one at a time"]) / statistics.median(times["lane set"])
     print(f"  ratio (one at a time / lane set): {ratio:.3f}; bit for bit the same: {same}")
+    ratio = statistics.median(times["lane set"]) / statistics.median(times[blocks])
+    worst = largest_difference(
+        [(t.rows, t.final) for t in together], [(t.rows, t.final) for t in in_blocks]
+    )
+    print(f"  ratio (lane set / {blocks}): {ratio:.3f}; largest relative difference: {worst:.1e}")
 
 
 def main() -> None:
@@ -91,10 +116,11 @@ def main() -> None:
     parser.add_argument("--panels", default="hover,funnel")
     parser.add_argument("--seeds", type=int, default=10)
     parser.add_argument("--runs", type=int, default=3)
+    parser.add_argument("--block", type=int, default=ACCELERATOR_BLOCK)
     args = parser.parse_args()
     print(f"loopid {loopid.__version__}, JAX {jax.__version__} on {jax.default_backend()}")
     for name in args.panels.split(","):
-        bench(name, args.seeds, args.runs)
+        bench(name, args.seeds, args.runs, args.block)
 
 
 if __name__ == "__main__":

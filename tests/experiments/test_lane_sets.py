@@ -73,6 +73,31 @@ def test_a_killed_lane_set_resumes_to_the_table_of_the_methods_one_by_one(
     assert "lane_set" not in metadata(out / "cells" / "hover__expert.parquet")
 
 
+def test_blocks_of_iterations_as_an_accelerator_runs_them_give_the_same_table(
+    one_by_one, tmp_path, monkeypatch
+):
+    """The accelerator's default, forced on the CPU: the lane set's 3 iterations as one block
+    (one ``lax.scan``, compiled by the memory estimate and reused by the run) give the table
+    and arrays of the methods one by one, bit for bit."""
+    from loopid.algorithms import loop
+    from loopid.experiments import backend
+
+    blocks = []
+
+    def in_blocks(*args):
+        blocks.append(args[5])  # the block size
+        return run_blocks(*args)
+
+    run_blocks = loop._blocks
+    monkeypatch.setattr(loop, "_blocks", in_blocks)
+    monkeypatch.setattr(chunks, "SPEED_SEEDS", 3)
+    monkeypatch.setattr(backend, "iteration_block", lambda: backend.ACCELERATOR_BLOCK)
+    out = tmp_path / "blocks"
+    run_cells(out, [HOVER], METHODS, workers=1, lanes=True, memory=16.0)
+    assert blocks == [3, 3]  # the lane set's two seed chunks, each one block of 3 iterations
+    _assert_same_run(one_by_one, out)
+
+
 def test_the_rows_check_counts_the_widest_lane_sets_methods(tmp_path, monkeypatch):
     """A lane set keeps the rows of all its methods' seeds: the check before anything runs
     counts the widest lane set's methods (4 here), not the scenario's lane sets (2: the

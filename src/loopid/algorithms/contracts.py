@@ -135,11 +135,15 @@ class LoopProgram(NamedTuple):
     noise) -> (carry, Row)``, ``step(carry, keys, noise, n, p, which) -> (carry, Row)`` and
     ``noise(keys) -> EvalNoise``
     (the seeds' test noise, :func:`noise_program`), each compiled once and reused by every
-    method that shares the cell."""
+    method that shares the cell; ``init(lane_keys) -> carry`` (the lanes' state before
+    iteration 1) and ``steps(carry, keys, noise, ns [B], ps [B, M], which [M]) -> (carry, rows
+    [B, ...])``, a block of B iterations as one ``lax.scan`` of ``step``."""
 
     start: Callable
     step: Callable
     noise: Callable
+    init: Callable | None = None
+    steps: Callable | None = None
 
 
 class EvalNoise(NamedTuple):

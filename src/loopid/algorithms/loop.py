@@ -16,7 +16,10 @@ reports how well its model predicts its own policy's data and ν's (the train/te
 Speed: the iteration is a pure function of a fixed-shape carry, vmapped over seeds (and, in a
 lane set, :func:`run_lanes`, over the methods' seeds) and jitted once; :func:`run_learning`
 calls it N − 1 times from Python (no retracing: the iteration number and
-``p_n`` are traced arguments), which gives progress and early results per iteration.
+``p_n`` are traced arguments), which gives progress and early results per iteration. With
+``block`` B > 1, :func:`run_lanes` instead runs B iterations per call as one ``lax.scan`` and
+fetches their rows once (what an accelerator does by default), so the host waits on the device
+once per block.
 
 Randomness (:mod:`loopid.algorithms.keys`, every stream named there): seed ``s`` has key ``k =
 jax.random.key(s)``; training draws at iteration n use ``fold_in(fold_in(k, 1), n)``
@@ -367,9 +370,6 @@ def make_loop_program(
         stats = jax.eval_shape(learn_lanes, carry, keys, lane_keys, n, p, which)[1]
         return carry, jax.tree_util.tree_map(lambda a: jnp.zeros(a.shape, a.dtype), stats)
 
-    # the carry is donated: run_learning never reads the old one, and XLA then updates the
-    # learner's sufficient statistics in place instead of copying them (~110 MB on the funnel)
-    @functools.partial(jax.jit, donate_argnums=0)
     def step(carry: _Carry, keys, noise, n, p, which=0):
         """Iteration ``n`` of every lane: ``keys [S]`` the seeds', ``p``, ``which`` scalars (one
         method) or ``[M]`` (M methods; the carry's lanes ``[M·S]``, method-major; ``noise``
@@ -387,12 +387,25 @@ def make_loop_program(
             solver_converged=info.converged, spectral_radius=info.spectral_radius, extra=extra,
         )  # fmt: skip
 
+    # the carry is donated: run_learning never reads the old one, and XLA then updates the
+    # learner's sufficient statistics in place instead of copying them (~110 MB on the funnel)
+    step_program = jax.jit(step, donate_argnums=0)
+
+    @functools.partial(jax.jit, donate_argnums=0)
+    def steps(carry: _Carry, keys, noise, ns, ps, which):
+        """Iterations ``ns [B]`` of every lane as one ``lax.scan`` of ``step`` (``ps [B, M]``
+        their policy fractions, ``which [M]``): the carry after them and their rows stacked,
+        leaves ``[B, M·S]``. The same numbers as ``step`` called B times. (A block is never
+        padded with iterations that a ``cond`` skips: the ``cond`` changed the last bits.)"""
+        return jax.lax.scan(lambda c, x: step(c, keys, noise, *x, which), carry, (ns, ps))
+
     def start(keys, noise, methods: int = 1):
         """Iteration 1 of ``methods`` methods' lanes (``noise``: the lanes' :func:`lane_noise`):
         the initial model solved and tested (the same compiled ``step``)."""
-        return step(init(_lane_keys(keys, methods)), keys, noise, *_first_iteration(methods))
+        lanes = init(_lane_keys(keys, methods))
+        return step_program(lanes, keys, noise, *_first_iteration(methods))
 
-    return LoopProgram(start, step, noise_program(plant, n_test, test_policy))
+    return LoopProgram(start, step_program, noise_program(plant, n_test, test_policy), init, steps)
 
 
 def _lane_keys(keys: jax.Array, methods: int) -> jax.Array:
@@ -417,11 +430,17 @@ def program_bytes(compiled) -> int:
 
 
 def program_memory(
-    program: LoopProgram, seeds: int, *, test_only: bool = False, methods: int = 1
+    program: LoopProgram,
+    seeds: int,
+    *,
+    test_only: bool = False,
+    methods: int = 1,
+    block: int = 1,
 ) -> int:
     """Peak bytes of a :class:`LoopProgram`'s programs for ``seeds`` seeds of ``methods`` methods
     (:func:`program_bytes`): the larger of the test-noise program and one ``step`` (which holds
-    the noise, the carry and the row). ``test_only``: the noise program alone (a fixed
+    the noise, the carry and the row), or with ``block`` > 1 (:func:`iteration_block`'s) one
+    ``steps`` of that many iterations. ``test_only``: the noise program alone (a fixed
     policy's test, or the policy-gradient baseline's, reads the noise in place and keeps one
     state per trajectory).
 
@@ -434,8 +453,14 @@ def program_memory(
         return peak
     noise = jax.eval_shape(lambda w: lane_noise(w, methods), noise)
     carry = jax.eval_shape(lambda k, w: program.start(k, w, methods)[0], keys, noise)
-    args = (carry, keys, noise, *_first_iteration(methods))
-    return max(peak, program_bytes(program.step.lower(*args).compile()))
+    if block > 1:
+        ns = jax.ShapeDtypeStruct((block,), jnp.int32)
+        ps = jax.ShapeDtypeStruct((block, methods), jnp.float64)
+        which = jax.ShapeDtypeStruct((methods,), jnp.int32)
+        lowered = program.steps.lower(carry, keys, noise, ns, ps, which)
+    else:
+        lowered = program.step.lower(carry, keys, noise, *_first_iteration(methods))
+    return max(peak, program_bytes(lowered.compile()))
 
 
 def run_learning(
@@ -492,6 +517,7 @@ def run_lanes(
     which: Sequence[int] = (0,),
     noise: EvalNoise | None = None,
     cell: LoopProgram | None = None,
+    block: int = 1,
 ) -> list[Trace]:
     """Run M learning methods on every seed as one *lane set*: the lanes are the (method, seed)
     pairs, ``M·S`` of them, method-major, and every iteration of all of them is one call of the
@@ -505,6 +531,13 @@ def run_lanes(
     :func:`run_learning` of its method: tested), and any subset of methods or seeds reruns
     bit for bit. ν's draws and the test noise are computed once per seed and shared by the
     methods' lanes. ``progress(n, row)``: after each iteration, the row's leaves ``[M·S]``.
+
+    ``block``: iterations per call at most. 1 calls ``step`` once per iteration; B > 1 runs
+    blocks of the largest divisor of N up to B iterations (:func:`iteration_block`), each one
+    ``lax.scan`` of ``step`` (the program's ``steps``), so an accelerator meets the host once
+    per block: the rows then come back, and ``progress`` sees them, a block at a time. The same
+    computation, compiled inside a loop: the helicopter's lane sets were measured bit for bit
+    on a CPU, and a finite MDP's rows to the last bit (tested to 1e-12 relative).
     """
     schedules = np.asarray(schedules, dtype=np.float64)
     if schedules.ndim != 2 or schedules.shape[0] < 1:
@@ -522,13 +555,18 @@ def run_lanes(
             plant, agent, nu, samples=samples, iterations=iterations, n_test=n_test, mode=mode,
             gamma=gamma, test_policy=test_policy,
         )  # fmt: skip
-    start, step, noise_of = program
-    noise = lane_noise(noise_of(keys) if noise is None else noise, methods)
+    noise = lane_noise(program.noise(keys) if noise is None else noise, methods)
+    block = iteration_block(iterations, block)
+    if block > 1 and program.steps is not None:
+        carry, rows = _blocks(program, keys, noise, schedules, which, block, progress)
+    else:
 
-    def one(carry, n):
-        return step(carry, keys, noise, jnp.int32(n), jnp.asarray(schedules[:, n - 1]), which)
+        def one(carry, n):
+            p = jnp.asarray(schedules[:, n - 1])
+            return program.step(carry, keys, noise, jnp.int32(n), p, which)
 
-    carry, rows = drive(lambda: start(keys, noise, methods), one, iterations, progress)
+        start = lambda: program.start(keys, noise, methods)  # noqa: E731
+        carry, rows = drive(start, one, iterations, progress)
     final = {"K": carry.K}
     if agent.params is not None:
         final |= jax.vmap(agent.params)(carry.learner)
@@ -547,6 +585,36 @@ def run_lanes(
         )
         for m in range(methods)
     ]
+
+
+def iteration_block(iterations: int, block: int) -> int:
+    """The iterations :func:`run_lanes` runs per call for ``block``: the largest divisor of
+    ``iterations`` up to ``block``, so that every call is one compiled program of that length
+    (ValueError naming a ``block`` below 1)."""
+    if isinstance(block, bool) or not isinstance(block, int | np.integer) or block < 1:
+        raise ValueError(f"block must be an integer >= 1, got {block!r}")
+    return max(b for b in range(1, min(int(block), iterations) + 1) if iterations % b == 0)
+
+
+def _blocks(program: LoopProgram, keys, noise, schedules, which, block: int, progress):
+    """:func:`run_lanes`' iterations in blocks of ``block`` (a divisor of their number) by
+    ``program.steps``: the last carry and the rows, each block's fetched to the host in one
+    transfer. Iteration 1's ``p`` is zeros, as :func:`_first_iteration`'s (iteration 1 collects
+    nothing, so neither ``p`` nor ``which`` is read there)."""
+    methods, iterations = schedules.shape
+    carry = program.init(_lane_keys(keys, methods))
+    ps = schedules.T.copy()
+    ps[0] = 0.0
+    rows = []
+    for first in range(1, iterations + 1, block):
+        ns = np.arange(first, first + block, dtype=np.int32)
+        carry, stacked = program.steps(carry, keys, noise, ns, ps[ns - 1], which)
+        stacked = jax.device_get(stacked)
+        for i, n in enumerate(ns):
+            rows.append(jax.tree_util.tree_map(lambda a, i=i: a[i], stacked))
+            if progress:
+                progress(int(n), rows[-1])
+    return carry, rows
 
 
 def _lanes(tree, m: int, seeds: int):
@@ -650,7 +718,7 @@ __getattr__ = renamed(
 __all__ = [  # the contracts and key streams, importable from here as before
     "EVALUATE", "TEST_POLICIES", "Agent", "Diagnostics", "EvalNoise", "IterationKeys",
     "LoopProgram", "Row", "SolverInfo", "Trace", "at_least", "cut_seeds", "drive", "eval_noise",
-    "iteration_key", "iteration_keys", "lane_noise", "learning_step", "make_loop_program",
-    "noise_program", "pad_seeds", "program_memory", "run_fixed_policy", "run_lanes",
-    "run_learning", "seed_keys", "trajectory_mean",
+    "iteration_block", "iteration_key", "iteration_keys", "lane_noise", "learning_step",
+    "make_loop_program", "noise_program", "pad_seeds", "program_memory", "run_fixed_policy",
+    "run_lanes", "run_learning", "seed_keys", "trajectory_mean",
 ]  # fmt: skip

@@ -52,6 +52,19 @@ def accelerator() -> bool:
     return name() != "cpu"
 
 
+#: Iterations a helicopter lane set runs per call on an accelerator (one ``lax.scan``, its rows
+#: fetched once per block: :func:`loopid.algorithms.loop.run_lanes`' ``block``).
+ACCELERATOR_BLOCK = 10
+
+
+def iteration_block() -> int:
+    """Iterations per call of the loop's lane sets: :data:`ACCELERATOR_BLOCK` on an
+    accelerator, where each call and each fetch of its rows waits on the host; 1 on the CPU,
+    where a call costs little next to an iteration and blocks measured no faster (a hover lane
+    set 7 % slower, a funnel one 11 % faster, within the noise of two cores)."""
+    return ACCELERATOR_BLOCK if accelerator() else 1
+
+
 def device_count() -> int:
     """This process's devices on the default backend."""
     return jax.local_device_count()

@@ -7,12 +7,14 @@ from loopid.algorithms import methods as M
 from loopid.algorithms.loop import (
     Trace,
     cut_seeds,
+    iteration_block,
     pad_seeds,
     program_memory,
     run_fixed_policy,
 )
 from loopid.algorithms.loop import run_lanes as run_learning_lanes
 from loopid.algorithms.policy_gradient import run_policy_gradient
+from loopid.experiments import backend
 from loopid.experiments.families.base import Progress
 from loopid.experiments.families.helicopter.assembly import setup
 from loopid.experiments.scenarios import Scenario
@@ -86,6 +88,7 @@ def run_lanes(
         n_test=s.test_trajectories, mode=s.sampling, gamma=s.gamma, test_policy=s.test_policy,
         progress=progress, program=st.program,
         which=[NU_KINDS.index(M.nu_kind(m)) for m in methods], noise=noise,
+        block=backend.iteration_block(),
     )  # fmt: skip
     return cut_seeds(dict(zip(methods, traces, strict=True)), seeds)
 
@@ -95,10 +98,11 @@ def memory(s: Scenario, method: str | tuple[str, ...], seeds: int) -> int:
     (:func:`loopid.algorithms.loop.program_memory`). The expert and the policy-gradient baseline
     run the test-noise program and a test that reads it (plus, for PG, rollouts of one state per
     probe), so the noise program is their peak."""
+    block = iteration_block(s.iterations, backend.iteration_block())  # as run_lanes calls it
     if isinstance(method, tuple):  # a lane set (run_lanes)
-        return program_memory(setup(s).program, seeds, methods=len(method))
+        return program_memory(setup(s).program, seeds, methods=len(method), block=block)
     M.check_method(method)
-    return program_memory(setup(s).program, seeds, test_only=method in NOT_LANES)
+    return program_memory(setup(s).program, seeds, test_only=method in NOT_LANES, block=block)
 
 
 def shared(s: Scenario, method: str) -> dict:
