@@ -51,9 +51,11 @@ def largest_difference(a, b) -> float:
     worst = 0.0
     for x, y in zip(jax.tree_util.tree_leaves(a), jax.tree_util.tree_leaves(b), strict=True):
         x, y = np.asarray(x, np.float64), np.asarray(y, np.float64)
-        with np.errstate(divide="ignore", invalid="ignore"):
-            r = np.where(x == y, 0.0, np.abs(x - y) / np.maximum(np.abs(x), np.abs(y)))
-        worst = max(worst, float(np.nanmax(r, initial=0.0)))
+        same = (x == y) | (np.isnan(x) & np.isnan(y))
+        with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
+            r = np.abs(x - y) / np.maximum(np.abs(x), np.abs(y))
+        r = np.where(same, 0.0, np.where(np.isnan(r), np.inf, r))  # NaN or inf on one side: inf
+        worst = max(worst, float(np.max(r, initial=0.0)))
     return worst
 
 

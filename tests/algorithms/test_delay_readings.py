@@ -130,14 +130,12 @@ def _dagger_model(delay_mode: str):
     learner = ftrl_least_squares(1e-3)
     agent = linear_agent(nominal, learner, task.Q, task.R, HORIZON)
     nu = nu_trajectory(plant, state_var=0.25, action_var=0.25)
-    start, step, _ = make_loop_program(
-        plant, agent, nu, samples=100, iterations=ITERATIONS, n_test=10
-    )
+    program = make_loop_program(plant, agent, nu, samples=100, iterations=ITERATIONS, n_test=10)
     keys = seed_keys(np.arange(3))
     noise = eval_noise(plant, keys, 10, "last")
-    carry, _ = start(keys, noise)
+    carry, _ = program.start(keys, noise)
     for n in range(2, ITERATIONS + 1):
-        carry, _ = step(carry, keys, noise, jnp.int32(n), jnp.float64(0.5))
+        carry, _ = program.step(carry, keys, noise, jnp.int32(n), jnp.float64(0.5))
     A_hat, B_hat = to_matrices(nominal, jax.vmap(learner.weights)(carry.learner.learner))
     Ae = np.zeros((K_STATE + 1, K_STATE + 1))
     Ae[:K_STATE, :K_STATE], Ae[K_STATE, K_STATE] = A, 1.0

@@ -10,6 +10,7 @@ import numpy as np
 import pytest
 
 from conftest import tree_allclose
+from loopid.algorithms import loop
 from loopid.algorithms.loop import (
     EvalNoise,
     iteration_block,
@@ -64,8 +65,7 @@ def lanes():
             n_test=1, mode="geometric", gamma=0.9, program=cell, which=w,
         )  # fmt: skip
 
-    run.program = cell
-    return run, alone
+    return run, alone, cell
 
 
 def _assert_same(a, b, what):
@@ -77,7 +77,7 @@ def _assert_same(a, b, what):
 
 
 def test_a_lane_set_equals_each_method_alone(lanes):
-    run, alone = lanes
+    run, alone, _ = lanes
     traces = run(METHODS)
     assert len(traces) == len(METHODS)
     for method, trace in zip(METHODS, traces, strict=True):
@@ -91,21 +91,28 @@ def test_a_lane_set_equals_each_method_alone(lanes):
 
 
 def test_any_subset_in_any_order_gives_the_same_rows(lanes):
-    run, _ = lanes
+    run, _, _ = lanes
     full = dict(zip(METHODS, run(METHODS), strict=True))
     subset = [METHODS[4], METHODS[1], METHODS[3]]
     for method, trace in zip(subset, run(subset), strict=True):
         _assert_same(trace, full[method], method)
 
 
-def test_blocks_of_iterations_give_the_rows_of_one_call_per_iteration(lanes):
+def test_blocks_of_iterations_give_the_rows_of_one_call_per_iteration(lanes, monkeypatch):
     """``block``: iterations as one ``lax.scan`` per block (the largest divisor of N = 6 up to
     the block: 4 runs blocks of 3) give every lane's rows and final arrays to 1e-12 relative
     (the scan's program rounds the MDP's last bit differently in a few rows; the helicopter's
     lane sets were measured bit for bit), and ``progress`` still sees every iteration's row, in
     order. The memory estimate compiles the block program the run then uses."""
-    run, _ = lanes
-    seen = {}
+    run, _, program = lanes
+    seen, blocks = {}, []
+    run_blocks = loop._blocks
+
+    def in_blocks(program, keys, noise, schedules, which, block, progress):
+        blocks.append(block)
+        return run_blocks(program, keys, noise, schedules, which, block, progress)
+
+    monkeypatch.setattr(loop, "_blocks", in_blocks)
 
     def progress(block):
         def record(n, row):
@@ -115,15 +122,17 @@ def test_blocks_of_iterations_give_the_rows_of_one_call_per_iteration(lanes):
 
     one = run(METHODS, 6, progress=progress(1))
     for block in (4, 6):
-        blocks = run(METHODS, 6, block=block, progress=progress(block))
-        for method, a, b in zip(METHODS, one, blocks, strict=True):
-            assert tree_allclose((a.rows, a.final), (b.rows, b.final), rtol=1e-12), method
+        traces = run(METHODS, 6, block=block, progress=progress(block))
+        for method, a, b in zip(METHODS, one, traces, strict=True):
+            assert tree_allclose((a.rows, a.final), (b.rows, b.final), rtol=1e-12, atol=0), method
             np.testing.assert_array_equal(a.rows.policy_samples, b.rows.policy_samples)
         assert [n for n, _ in seen[block]] == list(range(1, 7))
+        assert blocks == [3 if block == 4 else 6]  # one run in blocks of that size
+        blocks.clear()
         for (_, x), (_, y) in zip(seen[1], seen[block], strict=True):
             np.testing.assert_allclose(x, y, rtol=1e-12)
     # blocks of 2: the estimate compiles them, and the run then compiles nothing
-    assert program_memory(run.program, len(SEEDS), methods=len(METHODS), block=2) > 0
+    assert program_memory(program, len(SEEDS), methods=len(METHODS), block=2) > 0
     compiles = []
 
     def listen(event, _seconds, **_):
@@ -133,6 +142,7 @@ def test_blocks_of_iterations_give_the_rows_of_one_call_per_iteration(lanes):
     jax.monitoring.register_event_duration_secs_listener(listen)
     try:
         run(METHODS, 6, block=2)
+        assert blocks == [2]
     finally:
         jax.monitoring.unregister_event_duration_listener(listen)
     assert compiles == []

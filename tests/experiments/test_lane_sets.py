@@ -77,21 +77,20 @@ def test_blocks_of_iterations_as_an_accelerator_runs_them_give_the_same_table(
     one_by_one, tmp_path, monkeypatch
 ):
     """The accelerator's default, forced on the CPU: the lane set's 3 iterations as one block
-    (one ``lax.scan``, compiled by the memory estimate and reused by the run) give the table
-    and arrays of the methods one by one, bit for bit."""
+    (one ``lax.scan``) give the table and arrays of the methods one by one, bit for bit."""
     from loopid.algorithms import loop
     from loopid.experiments import backend
 
     blocks = []
 
-    def in_blocks(*args):
-        blocks.append(args[5])  # the block size
-        return run_blocks(*args)
+    def in_blocks(program, keys, noise, schedules, which, block, progress):
+        blocks.append(block)
+        return run_blocks(program, keys, noise, schedules, which, block, progress)
 
     run_blocks = loop._blocks
     monkeypatch.setattr(loop, "_blocks", in_blocks)
     monkeypatch.setattr(chunks, "SPEED_SEEDS", 3)
-    monkeypatch.setattr(backend, "iteration_block", lambda: backend.ACCELERATOR_BLOCK)
+    monkeypatch.setattr(backend, "default_block", lambda: backend.ACCELERATOR_BLOCK)
     out = tmp_path / "blocks"
     run_cells(out, [HOVER], METHODS, workers=1, lanes=True, memory=16.0)
     assert blocks == [3, 3]  # the lane set's two seed chunks, each one block of 3 iterations

@@ -17,9 +17,9 @@ Speed: the iteration is a pure function of a fixed-shape carry, vmapped over see
 lane set, :func:`run_lanes`, over the methods' seeds) and jitted once; :func:`run_learning`
 calls it N − 1 times from Python (no retracing: the iteration number and
 ``p_n`` are traced arguments), which gives progress and early results per iteration. With
-``block`` B > 1, :func:`run_lanes` instead runs B iterations per call as one ``lax.scan`` and
-fetches their rows once (what an accelerator does by default), so the host waits on the device
-once per block.
+``block`` B > 1, :func:`run_lanes` instead runs up to B iterations per call (the largest
+divisor of N) as one ``lax.scan`` and fetches their rows once, so the host waits on the device
+once per block (the helicopter's lane sets do so on an accelerator).
 
 Randomness (:mod:`loopid.algorithms.keys`, every stream named there): seed ``s`` has key ``k =
 jax.random.key(s)``; training draws at iteration n use ``fold_in(fold_in(k, 1), n)``
@@ -258,7 +258,8 @@ def make_loop_program(
     diagnostics: Diagnostics | None = None,
     controller: Callable[[Any, jax.Array], Any] | None = None,
 ):
-    """Build the :class:`LoopProgram` ``(start, step, noise)``, jitted, over all seeds at once.
+    """Build the :class:`LoopProgram` ``(start, step, noise, init, steps)``, jitted, over all
+    seeds at once.
 
     Collection and the learner's update are vmapped over seeds; the solve runs as the agent's
     ``policies`` says (default seed by seed, ``seeds_in_turn``) and the test trajectories of all
@@ -395,8 +396,10 @@ def make_loop_program(
     def steps(carry: _Carry, keys, noise, ns, ps, which):
         """Iterations ``ns [B]`` of every lane as one ``lax.scan`` of ``step`` (``ps [B, M]``
         their policy fractions, ``which [M]``): the carry after them and their rows stacked,
-        leaves ``[B, M·S]``. The same numbers as ``step`` called B times. (A block is never
-        padded with iterations that a ``cond`` skips: the ``cond`` changed the last bits.)"""
+        leaves ``[B, M·S]``. The same computation as ``step`` called B times, compiled inside
+        a loop: bit for bit on the helicopter's lane sets (measured on a CPU), within one ulp in
+        a few rows of a finite MDP's. (A block is never padded with iterations that a ``cond``
+        skips: that ``cond`` moved the hover's test costs by up to 7e-4 relative.)"""
         return jax.lax.scan(lambda c, x: step(c, keys, noise, *x, which), carry, (ns, ps))
 
     def start(keys, noise, methods: int = 1):
@@ -453,7 +456,7 @@ def program_memory(
         return peak
     noise = jax.eval_shape(lambda w: lane_noise(w, methods), noise)
     carry = jax.eval_shape(lambda k, w: program.start(k, w, methods)[0], keys, noise)
-    if block > 1:
+    if block > 1 and program.steps is not None:  # as run_lanes runs it
         ns = jax.ShapeDtypeStruct((block,), jnp.int32)
         ps = jax.ShapeDtypeStruct((block, methods), jnp.float64)
         which = jax.ShapeDtypeStruct((methods,), jnp.int32)
@@ -521,8 +524,8 @@ def run_lanes(
 ) -> list[Trace]:
     """Run M learning methods on every seed as one *lane set*: the lanes are the (method, seed)
     pairs, ``M·S`` of them, method-major, and every iteration of all of them is one call of the
-    program's ``step`` (``program``, ``cell``: as in :func:`run_learning`). Returns one
-    :class:`Trace` per method.
+    program's ``step`` (with ``block``, a block of iterations one call of its ``steps``;
+    ``program``, ``cell``: as in :func:`run_learning`). Returns one :class:`Trace` per method.
 
     A method is data: its row of ``schedules [M, N]`` (the policy fractions ``p_n``, as
     ``fractions`` of :func:`run_learning`) and its ν index ``which[m]``. Every draw depends on
@@ -530,14 +533,15 @@ def run_lanes(
     its own inputs only, so a lane has the same numbers in any lane set (the same as
     :func:`run_learning` of its method: tested), and any subset of methods or seeds reruns
     bit for bit. ν's draws and the test noise are computed once per seed and shared by the
-    methods' lanes. ``progress(n, row)``: after each iteration, the row's leaves ``[M·S]``.
+    methods' lanes. ``progress(n, row)``: after each iteration (with ``block``, after each
+    block, for each of its iterations), the row's leaves ``[M·S]``.
 
     ``block``: iterations per call at most. 1 calls ``step`` once per iteration; B > 1 runs
     blocks of the largest divisor of N up to B iterations (:func:`iteration_block`), each one
     ``lax.scan`` of ``step`` (the program's ``steps``), so an accelerator meets the host once
     per block: the rows then come back, and ``progress`` sees them, a block at a time. The same
     computation, compiled inside a loop: the helicopter's lane sets were measured bit for bit
-    on a CPU, and a finite MDP's rows to the last bit (tested to 1e-12 relative).
+    on a CPU, and a finite MDP's rows within one ulp (tested to 1e-12 relative).
     """
     schedules = np.asarray(schedules, dtype=np.float64)
     if schedules.ndim != 2 or schedules.shape[0] < 1:
@@ -599,8 +603,8 @@ def iteration_block(iterations: int, block: int) -> int:
 def _blocks(program: LoopProgram, keys, noise, schedules, which, block: int, progress):
     """:func:`run_lanes`' iterations in blocks of ``block`` (a divisor of their number) by
     ``program.steps``: the last carry and the rows, each block's fetched to the host in one
-    transfer. Iteration 1's ``p`` is zeros, as :func:`_first_iteration`'s (iteration 1 collects
-    nothing, so neither ``p`` nor ``which`` is read there)."""
+    transfer. Iteration 1's ``p`` is zeros, as :func:`_first_iteration`'s (the diagnostics read
+    it); its ``which`` is the methods' own, unused there (iteration 1 collects nothing)."""
     methods, iterations = schedules.shape
     carry = program.init(_lane_keys(keys, methods))
     ps = schedules.T.copy()

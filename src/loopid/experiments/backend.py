@@ -57,11 +57,11 @@ def accelerator() -> bool:
 ACCELERATOR_BLOCK = 10
 
 
-def iteration_block() -> int:
-    """Iterations per call of the loop's lane sets: :data:`ACCELERATOR_BLOCK` on an
+def default_block() -> int:
+    """Iterations per call the helicopter's lane sets ask for: :data:`ACCELERATOR_BLOCK` on an
     accelerator, where each call and each fetch of its rows waits on the host; 1 on the CPU,
-    where a call costs little next to an iteration and blocks measured no faster (a hover lane
-    set 7 % slower, a funnel one 11 % faster, within the noise of two cores)."""
+    where a call costs little next to an iteration and blocks showed no consistent gain
+    (``docs/benchmarks.md``, "iteration blocks")."""
     return ACCELERATOR_BLOCK if accelerator() else 1
 
 

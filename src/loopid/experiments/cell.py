@@ -42,9 +42,10 @@ def run_cell(
     started: float | None = None,
 ) -> CellResult | dict[str, CellResult]:
     """One cell: its rows (:func:`loopid.experiments.results.trace_table`), with its timings in
-    the table's metadata: ``wall_s`` (the whole cell) and ``first_s`` (until iteration 2 was
-    done: compilation plus two iterations), both from ``started`` (a ``time.perf_counter()``;
-    default now); and its final policies and models.
+    the table's metadata: ``wall_s`` (the whole cell) and ``first_s`` (until iteration 2's row
+    came back: compilation plus two iterations, or, where the loop runs blocks of iterations,
+    plus the first block), both from ``started`` (a ``time.perf_counter()``; default now); and
+    its final policies and models.
 
     A tuple of methods is a lane set (the family's ``lane_sets``, run by its ``run_lanes``):
     ``{method: CellResult}``, each cell's ``wall_s`` and ``first_s`` the lane set's times shared

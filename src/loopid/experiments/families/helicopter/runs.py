@@ -88,7 +88,7 @@ def run_lanes(
         n_test=s.test_trajectories, mode=s.sampling, gamma=s.gamma, test_policy=s.test_policy,
         progress=progress, program=st.program,
         which=[NU_KINDS.index(M.nu_kind(m)) for m in methods], noise=noise,
-        block=backend.iteration_block(),
+        block=backend.default_block(),
     )  # fmt: skip
     return cut_seeds(dict(zip(methods, traces, strict=True)), seeds)
 
@@ -98,11 +98,14 @@ def memory(s: Scenario, method: str | tuple[str, ...], seeds: int) -> int:
     (:func:`loopid.algorithms.loop.program_memory`). The expert and the policy-gradient baseline
     run the test-noise program and a test that reads it (plus, for PG, rollouts of one state per
     probe), so the noise program is their peak."""
-    block = iteration_block(s.iterations, backend.iteration_block())  # as run_lanes calls it
+    program = setup(s).program
+    block = iteration_block(s.iterations, backend.default_block())  # as run_lanes runs it
     if isinstance(method, tuple):  # a lane set (run_lanes)
-        return program_memory(setup(s).program, seeds, methods=len(method), block=block)
+        return program_memory(program, seeds, methods=len(method), block=block)
     M.check_method(method)
-    return program_memory(setup(s).program, seeds, test_only=method in NOT_LANES, block=block)
+    if method in NOT_LANES:
+        return program_memory(program, seeds, test_only=True)
+    return program_memory(program, seeds, block=block)  # a lane set of one (run)
 
 
 def shared(s: Scenario, method: str) -> dict:
