@@ -603,12 +603,12 @@ def iteration_block(iterations: int, block: int) -> int:
 def _blocks(program: LoopProgram, keys, noise, schedules, which, block: int, progress):
     """:func:`run_lanes`' iterations in blocks of ``block`` (a divisor of their number) by
     ``program.steps``: the last carry and the rows, each block's fetched to the host in one
-    transfer. Iteration 1's ``p`` is zeros, as :func:`_first_iteration`'s (the diagnostics read
-    it); its ``which`` is the methods' own, unused there (iteration 1 collects nothing)."""
+    transfer. Iteration 1's ``p`` is :func:`_first_iteration`'s (the diagnostics read it); its
+    ``which`` is the methods' own, unused there (iteration 1 collects nothing)."""
     methods, iterations = schedules.shape
     carry = program.init(_lane_keys(keys, methods))
     ps = schedules.T.copy()
-    ps[0] = 0.0
+    ps[0] = _first_iteration(methods)[1]  # iteration 1's p, as start passes it
     rows = []
     for first in range(1, iterations + 1, block):
         ns = np.arange(first, first + block, dtype=np.int32)
