@@ -19,12 +19,15 @@ RENAMED = [
     ("loopid.experiments.families.helicopter", "nominal_model", "helicopter_nominal_model"),
     ("loopid.experiments.executors", "spread", "spread"),
     ("loopid.experiments.executors", "core_shares", "core_shares"),
+    ("loopid.algorithms.loop", "batch_losses", "batch_losses"),
+    ("loopid.algorithms.loop", "LearnStats", "LearnStats"),
 ]
 NEW_HOME = {
     "loopid.algorithms.host_loop": "loopid.algorithms.gym_loop",
     "loopid.experiments.study": "loopid.experiments.study_report",
     "loopid.experiments.families.helicopter": "loopid.algorithms.helicopter_plant",
     "loopid.experiments.executors": "loopid.experiments.pool",
+    "loopid.algorithms.loop": "loopid.algorithms.loop_program",
 }
 
 

@@ -1,7 +1,7 @@
-"""The ν samplers as a loop program holds them (loopid.exploration, loop._sampler_branches): ν_e
-and ν_en are one drawing function at two action-noise levels, so the switch that picks a
-method's ν has two branches for three samplers, and each sampler drawn through its branch gives
-the very draws it gives alone, bit for bit."""
+"""The ν samplers as a loop program holds them (loopid.exploration,
+loop_program._sampler_branches): ν_e and ν_en are one drawing function at two action-noise
+levels, so the switch that picks a method's ν has two branches for three samplers, and each
+sampler drawn through its branch gives the very draws it gives alone, bit for bit."""
 
 import jax
 import numpy as np
@@ -10,7 +10,7 @@ import pytest
 from loopid.algorithms.contracts import SharedSampler
 from loopid.algorithms.expert import expert_gains
 from loopid.algorithms.helicopter_plant import helicopter_plant
-from loopid.algorithms.loop import _sampler_branches
+from loopid.algorithms.loop_program import _sampler_branches
 from loopid.exploration import NU_KINDS, make_nu, make_nus
 from loopid.systems.tasks import make_task
 

@@ -10,8 +10,8 @@ solved (LQR for the linear model; iLQR or MPC for the others) and π_{n+1} is wr
 
 The agent is the Gymnasium family's (:func:`loopid.experiments.families.gym.agent.compiled_agent`,
 the same model class × learner × planner), and the losses are the loop's
-(:func:`loopid.algorithms.loop.batch_losses`): a round fed the transitions a ``loopid run gym``
-iteration learned from gives that iteration's model and gains.
+(:func:`loopid.algorithms.loop_program.batch_losses`): a round fed the transitions a
+``loopid run gym`` iteration learned from gives that iteration's model and gains.
 """
 
 from pathlib import Path
@@ -21,7 +21,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from loopid.algorithms.loop import batch_losses
+from loopid.algorithms.loop_program import batch_losses
 from loopid.experiments.families.gym.agent import CompiledAgent, compiled_agent
 from loopid.experiments.results import write_atomic
 from loopid.rounds import report
