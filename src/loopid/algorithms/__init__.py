@@ -14,6 +14,7 @@ __all__ = [
     "helicopter_plant",
     "keys",
     "loop",
+    "loop_program",
     "mdp_agent",
     "methods",
     "model_based",

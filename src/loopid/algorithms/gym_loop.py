@@ -20,7 +20,7 @@ the same test episodes at every iteration and for every method at that seed, i.e
 numbers); each slot seeds its env resets and action noise (:mod:`loopid.systems.from_gymnasium`).
 The draws and the policy/ν choice use the JAX loop's keys
 (:func:`loopid.algorithms.keys.iteration_keys`), and the learning step is the JAX loop's
-(:func:`loopid.algorithms.loop.learning_step`).
+(:func:`loopid.algorithms.loop_program.learning_step`).
 
 Test cost of one episode: ``Σ_t c(o_t, a_t)`` over the actions taken (plus ``termination_cost`` if
 it ended by ``terminated``), capped at ``cost_cap``; an episode that reaches the cap or a non-finite

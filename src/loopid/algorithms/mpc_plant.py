@@ -9,7 +9,7 @@ warm-started from its previous plan shifted by ``every`` steps, and between re-p
 plan's feedback ``Δu = U_j − K_j(Δx − X_j)`` (j = steps since the plan). Everything else is the
 plant's: the system's step, the delay FIFO (under ``fifo`` the command acts d steps later, as
 for gains), the noise, the safe region, the cost and its cap (:mod:`loopid.algorithms.plant`).
-The loop flies it through :func:`loopid.algorithms.loop.make_loop_program`'s ``controller``
+The loop flies it through :func:`loopid.algorithms.loop_program.make_loop_program`'s ``controller``
 (the seed's model parameters), so one ``jit`` holds the planner, every seed and every test
 trajectory.
 

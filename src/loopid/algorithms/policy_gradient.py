@@ -435,7 +435,8 @@ def run_policy_gradient(
     ``valid_samples`` are what an iteration spent (:func:`spent`), and the Trace's ``samples``
     column counts m per iteration: transitions under ``"transitions"``, *rollouts* (of
     ``min(horizon, T)`` steps each) under ``"rollouts"``. ``noise``: the seeds' test noise
-    (``EvalNoise.test``) when the caller keeps a :func:`loopid.algorithms.loop.noise_program`."""
+    (``EvalNoise.test``) when the caller keeps a
+    :func:`loopid.algorithms.loop_program.noise_program`."""
     if not (sigma > 0 and step > 0):
         raise ValueError(f"pg_sigma and pg_step must be > 0, got {sigma!r}, {step!r}")
     _, P = budget(samples, horizon, plant.horizon, samples_mode=samples_mode)
