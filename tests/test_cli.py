@@ -127,8 +127,8 @@ def quick(tmp_path_factory, cache) -> Path:
     """``loopid reproduce --quick`` into a fresh directory (fills the shared cache).
 
     The end-to-end runs of this file use one worker process: they are compile-bound, and on
-    two cores two workers each start JAX and compile what they meet (programs that compile in
-    under half a second are not shared through the cache) for no gain in wall time
+    two cores two workers each start JAX and compile what they meet (neither has stored it in
+    the cache yet) for no gain in wall time
     (``reproduce --quick`` cold, measured: 76 s and 108 CPU-s with one worker, 85 s and 149
     CPU-s with two). Worker processes have their own tests (``test_cli_executors.py``)."""
     out = tmp_path_factory.mktemp("quick") / "run"

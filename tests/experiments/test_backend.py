@@ -179,3 +179,34 @@ def test_import_sets_loopids_xla_flags_unless_the_user_chose(given, expected):
     out = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True)
     assert out.returncode == 0, out.stderr
     assert out.stdout.strip() == expected
+
+
+def test_the_compilation_cache_keeps_a_program_that_compiles_at_once(tmp_path):
+    """``compile_cache`` stores every program, however quickly it compiles (a second
+    ``reproduce --quick`` loads its hundreds of small programs too): the one-line programs that
+    one process compiles are cache entries that a second process loads, compiling nothing."""
+    import subprocess
+    import sys
+
+    code = (
+        "import collections, sys, jax, jax.numpy as jnp\n"
+        "from loopid.experiments.backend import compile_cache\n"
+        "seen = collections.Counter()\n"
+        "jax.monitoring.register_event_listener(lambda event, **_: seen.update([event]))\n"
+        "compile_cache(sys.argv[1])\n"
+        "jax.jit(lambda x: 2.0 * x + 1.0)(jnp.arange(3.0)).block_until_ready()\n"
+        "print(seen['/jax/compilation_cache/cache_hits'],"
+        " seen['/jax/compilation_cache/cache_misses'])\n"
+    )
+
+    def run() -> tuple[int, int]:
+        out = subprocess.run(
+            [sys.executable, "-c", code, str(tmp_path)], capture_output=True, text=True
+        )
+        assert out.returncode == 0, out.stderr
+        hits, misses = map(int, out.stdout.split())
+        return hits, misses
+
+    hits, compiled = run()
+    assert hits == 0 and compiled >= 1 and len(list(tmp_path.iterdir())) >= compiled
+    assert run() == (compiled, 0)  # every one of them loaded, none compiled
