@@ -132,6 +132,16 @@ class LearnStats(NamedTuple):
     valid_samples: jax.Array
 
 
+def no_stats(lanes: int, loss_dtype) -> LearnStats:
+    """The statistics of an iteration that learns nothing (iteration 1), zeros for ``lanes``
+    lanes: the losses ``[lanes]`` in ``loss_dtype``, the sample counts ``[lanes]`` in JAX's
+    default integer (what :func:`learning_step`'s sums of masks give). Written out rather than
+    read from a trace of the learning half (``jax.eval_shape``), which traced that half a second
+    time in every program."""
+    count = jax.dtypes.canonicalize_dtype(jnp.int_)
+    return LearnStats(*(jnp.zeros(lanes, d) for d in (loss_dtype,) * 3 + (count,) * 2))
+
+
 def learning_step(agent: Agent, learner, loss_sum, from_pol, from_nu, k_mix, n, p, samples: int):
     """Algorithm 1's learning half for one seed, the same for the JAX loop and the host loop.
 
@@ -336,8 +346,7 @@ def make_loop_program(
         return jax.vmap(learn, in_axes=(0, 0, None, 0, nu_axis))(carry, lane_keys, n, p, from_nu)
 
     def skip(carry: _Carry, keys, lane_keys, n, p, which):
-        stats = jax.eval_shape(learn_lanes, carry, keys, lane_keys, n, p, which)[1]
-        return carry, jax.tree_util.tree_map(lambda a: jnp.zeros(a.shape, a.dtype), stats)
+        return carry, no_stats(lane_keys.shape[0], carry.loss_sum.dtype)
 
     def step(carry: _Carry, keys, noise, n, p, which=0):
         """Iteration ``n`` of every lane: ``keys [S]`` the seeds', ``p``, ``which`` scalars (one
