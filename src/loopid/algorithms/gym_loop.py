@@ -8,7 +8,7 @@ transitions uniformly without replacement among the valid steps of each (:func:`
 i of the batch from the policy draws with probability ``p_n`` and from ν otherwise
 (:func:`select`), records the model's loss on each set before the update, gives the batch to the
 learner (each sample seen once), solves for ``π_n`` and tests it. The rows are the same
-:class:`~loopid.algorithms.loop.Row` diagnostics.
+:class:`~loopid.algorithms.contracts.Row` diagnostics.
 
 Only the plant differs: collection and testing are Python driving the vector env; the learner's
 update, its losses and the solve are one jitted function vmapped over seeds (compiled once per

@@ -82,7 +82,7 @@ class LinearAgentState(NamedTuple):
 def linear_agent(
     model: LinearOffsetModel, learner: Learner, Q: jax.Array, R: jax.Array, horizon: int
 ) -> Agent:
-    """An :class:`~loopid.algorithms.loop.Agent` for a (time-varying) linear offset model.
+    """An :class:`~loopid.algorithms.contracts.Agent` for a (time-varying) linear offset model.
 
     ``model.A``: ``[n, n]`` (time-invariant) or ``[horizon, n, n]`` (time-varying: one offset pair
     per step, the learner is :func:`loopid.learners.indexed` over the steps).

@@ -2,7 +2,7 @@
 
 Algorithm 1 of Ross & Bagnell (2012) needs three things of an agent: a model class, a no-regret
 online learner for it, and an optimal-control solver. :func:`planning_agent`
-makes an :class:`~loopid.algorithms.loop.Agent` of any :class:`ModelClass` and any planner, so
+makes an :class:`~loopid.algorithms.contracts.Agent` of any :class:`ModelClass` and any planner, so
 the JAX loop and the host loop run nonlinear models unchanged:
 
 - :func:`feature_model`: Δx' = AΔx + BΔu + Wᵀφ(Δx, Δu) (:mod:`loopid.models.feature_model`),
@@ -101,7 +101,7 @@ def feature_model(nominal: LinearOffsetModel, fmap: F.FeatureMap, learner: Learn
 
 def mlp_model(nominal: LinearOffsetModel, learner: MLPLearner, seed: int = 0) -> ModelClass:
     """The online MLP model (:mod:`loopid.models.mlp`). Every seed of a run starts from the same
-    network (``learner.init(seed)``: :class:`~loopid.algorithms.loop.Agent` ``init`` takes no
+    network (``learner.init(seed)``: :class:`~loopid.algorithms.contracts.Agent` ``init`` takes no
     key) and sees its own data. Non-convex: no regret claim. Saved as ``mlp.*`` arrays (the
     layers' weights and biases and the input/target normalisation)."""
     tv = nominal.time_varying
@@ -157,7 +157,7 @@ def restore_seeds(model: ModelClass, arrays: dict):
 
 
 def planning_agent(model: ModelClass, plan: Callable[[Any], tuple[jax.Array, jax.Array]]) -> Agent:
-    """An :class:`~loopid.algorithms.loop.Agent` of ``model`` solved by ``plan``.
+    """An :class:`~loopid.algorithms.contracts.Agent` of ``model`` solved by ``plan``.
 
     ``plan(params) -> (K [horizon, m, n], converged)``: the policy of the model
     ``model.dynamics(params, ·)`` (:func:`ilqr_plan`). A non-finite plan gives zero gains and

@@ -25,7 +25,7 @@ Scenario = Any
 
 class CellResult(NamedTuple):
     """A finished cell: its rows (with its timings in the table's metadata) and what it ended
-    with (:attr:`loopid.algorithms.loop.Trace.final`, saved by :mod:`.artifacts`)."""
+    with (:attr:`loopid.algorithms.contracts.Trace.final`, saved by :mod:`.artifacts`)."""
 
     table: pa.Table
     seeds: np.ndarray

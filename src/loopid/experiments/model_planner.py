@@ -164,7 +164,7 @@ def is_paper_agent(s) -> bool:
 def make_agent(s, nominal, Q, R, horizon: int, *, start=None, U0=None, plan_cost=None,
                alternatives=None, model=None):  # fmt: skip
     """The agent of the config ``s``: its model class × learner × planner, the one place every
-    family assembles one (:class:`loopid.algorithms.loop.Agent`).
+    family assembles one (:class:`loopid.algorithms.contracts.Agent`).
 
     - ``linear`` + ``lqr`` (the paper's): the linear offset model ``nominal`` learned by FTRL
       (λ = ``s.ftrl_lambda``) and solved by (time-varying) LQR on ``Q [n, n]``, ``R [m, m]``

@@ -3,11 +3,11 @@
 Columns (types fixed by :data:`SCHEMA`): ``scenario, method, seed, iteration, samples`` (the
 transitions collected before that iteration's policy was solved), ``test_cost`` (mean capped
 total cost over the test trajectories), ``test_cost_median``, ``diverged`` (test trajectories
-that hit the cap or a non-finite state), and the diagnostics of :class:`loopid.algorithms.loop.Row`
-(``loss_nu``, ``loss_policy``, ``online_loss``, ``policy_samples``, ``valid_samples``,
-``solver_converged``, ``spectral_radius``), then any system-specific diagnostics
-(:class:`loopid.algorithms.loop.Diagnostics`, float64; +inf allowed, e.g. c_ν^π where ν misses
-mass). Files are written atomically (temporary name, then
+that hit the cap or a non-finite state), and the diagnostics of
+:class:`loopid.algorithms.contracts.Row` (``loss_nu``, ``loss_policy``, ``online_loss``,
+``policy_samples``, ``valid_samples``, ``solver_converged``, ``spectral_radius``), then any
+system-specific diagnostics (:class:`loopid.algorithms.contracts.Diagnostics`, float64; +inf
+allowed, e.g. c_ν^π where ν misses mass). Files are written atomically (temporary name, then
 rename), so a killed run never leaves a half-written table.
 """
 

@@ -46,7 +46,7 @@ class Setup(NamedTuple):
         (:func:`loopid.algorithms.mpc_plant.mpc_plant`), else None.
       replanner: MPC's settings (:func:`loopid.control.replanner`), else None.
       test_noise: ``test_noise(seeds)``, the test noise of a seed chunk (integer seeds;
-        :class:`loopid.algorithms.loop.EvalNoise`; :func:`_noise`).
+        :class:`loopid.algorithms.contracts.EvalNoise`; :func:`_noise`).
     """
 
     plant: Plant
@@ -165,7 +165,7 @@ def loop_program(s: Scenario) -> tuple[list, LoopProgram]:
 
 @lru_cache(maxsize=2)
 def _noise(key: Scenario, seeds: tuple[int, ...]):
-    """The test noise of ``seeds`` (:class:`loopid.algorithms.loop.EvalNoise`), computed once per
-    scenario and seed chunk and shared by every method a process runs on them (a pure function
-    of the seeds: each method reads the same arrays it would have drawn itself)."""
+    """The test noise of ``seeds`` (:class:`loopid.algorithms.contracts.EvalNoise`), computed
+    once per scenario and seed chunk and shared by every method a process runs on them (a pure
+    function of the seeds: each method reads the same arrays it would have drawn itself)."""
     return _setup(key).program.noise(seed_keys(np.asarray(seeds)))

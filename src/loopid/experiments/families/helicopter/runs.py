@@ -26,7 +26,7 @@ def run(method: str, s: Scenario, seeds=None, progress: Progress | None = None) 
     """Run ``method`` (:data:`loopid.algorithms.methods.METHODS`) on scenario ``s``.
 
     ``seeds``: integer seeds (default ``range(s.seeds)``). Returns a
-    :class:`~loopid.algorithms.loop.Trace` with one row per seed and iteration;
+    :class:`~loopid.algorithms.contracts.Trace` with one row per seed and iteration;
     ``progress(n, row)`` is called after every iteration. A learning method runs as a lane set
     of one (:func:`run_lanes`).
     """
