@@ -60,7 +60,8 @@ class Agent(NamedTuple):
       rows ignored).
     - ``policy(state) -> (K [horizon, m, n], SolverInfo)``: solve the optimal-control problem on
       the current model.
-    - ``loss(state, batch) -> [b]``: per-row prediction loss of the current model.
+    - ``loss(state, batch) -> [b]``: per-row prediction loss of the current model, float64 (the
+      loop's loss statistics are float64).
     - ``policies(states) -> (K [S, horizon, m, n], SolverInfo [S])`` (optional): ``policy`` of
       every seed (a leading seed axis), in whatever way suits the solver (batched, or seed by
       seed so that a ``cond`` skips the branch it does not take); default seed by seed.

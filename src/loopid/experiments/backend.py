@@ -143,8 +143,8 @@ def compile_cache(path: str | os.PathLike | None = None) -> str:
     ``path`` defaults to ``$LOOPID_JAX_CACHE``, else ``~/.cache/loopid/jax``. Every compiled
     program is stored, however quickly it compiled, so a second run of the same cells, in any
     process, compiles nothing: the cells' own programs take 5-60 s to compile, and the hundreds
-    of small ones around them (noise, setup, eager operations) add up to about a quarter of a
-    second ``reproduce --quick`` (about 1 MB more on disk).
+    of small ones around them (noise, setup, eager operations) took about a quarter of a second
+    run of ``reproduce --quick`` when they were compiled again (they take about 1 MB on disk).
     """
     if path is None:
         path = os.environ.get("LOOPID_JAX_CACHE", str(Path.home() / ".cache" / "loopid" / "jax"))
