@@ -239,8 +239,9 @@ READINGS = typer.Option(
     None,
     "--readings",
     help="Preset of the readings of the details the paper leaves open: probable (the default: "
-    "delay_mode=latency, funnel_nominal=heading, pg_samples=rollouts) or literal (fifo, spec, "
-    "transitions). It overrides --config; --set overrides it.",
+    "delay_mode=latency, funnel_nominal=heading, pg_samples=rollouts, pg_update=descent, "
+    "nu_t_center=nominal) or literal (fifo, spec, transitions, conservative, target). It "
+    "overrides --config; --set overrides it.",
 )
 
 

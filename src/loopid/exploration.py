@@ -6,8 +6,12 @@ Each sampler is a pure function ``sample(key, m) -> Transitions`` of ``m`` trans
 
 - ``ν_t`` (:func:`nu_trajectory`): the desired trajectory with white Gaussian noise: a target
   time ``t`` uniform on ``{0, …, T−2}``, error state ``Δx = [ξ; 1]`` with ``ξ ~ N(0, σ_s² I)``
-  (σ_s² = 0.0025) mapped back through the error coordinates, action ``Δu ~ N(0, σ_a² I)``
-  (σ_a² = 0.0001).
+  (σ_s² = 0.0025) mapped back through the error coordinates around the centre's state ``c_t``,
+  action ``Δu = ū_t + η`` with ``η ~ N(0, σ_a² I)`` (σ_a² = 0.0001). The centre
+  (:class:`Centre`, ``c_t`` ``[T, n_x]`` and ``ū_t`` ``[T, m]``) is one reading of "the desired
+  trajectory": the cost's target with no actions (the default of :func:`nu_trajectory`), or a
+  flyable trajectory with its actions, such as the expert's planned flight
+  (:func:`planned_flight`).
 - ``ν_e`` (:func:`nu_expert`, ``action_std = 0``): state-action pairs visited by the expert on
   the real noisy system, drawn uniformly from fresh expert rollouts.
 - ``ν_en`` (:func:`nu_expert`, ``action_std = 0.01``): the same, with ``N(0, 0.0001 I)`` added
@@ -27,12 +31,13 @@ is a plain one-step query.
 
 import math
 from collections.abc import Callable
+from typing import NamedTuple
 
 import jax
 import jax.numpy as jnp
 
 from loopid.algorithms.contracts import SharedSampler
-from loopid.algorithms.plant import Plant, Transitions, draw, flatten
+from loopid.algorithms.plant import Plant, Transitions, draw, flatten, make_plant
 
 NU_KINDS = ("t", "e", "en")
 
@@ -44,16 +49,53 @@ def _query_many(plant: Plant, x, du, t, key) -> Transitions:
     return jax.vmap(plant.query)(x, du, t, keys)
 
 
+class Centre(NamedTuple):
+    """What ``ν_t`` draws its noise around: raw states ``states [≥ horizon, n_x]`` (row t is the
+    centre at target time t) and actions ``actions [horizon, m]`` (``Δu``), or ``None`` for no
+    action (noise around zero)."""
+
+    states: jax.Array
+    actions: jax.Array | None = None
+
+
+def planned_flight(plant: Plant, K: jax.Array) -> Centre:
+    """The planned flight of the gain ``K [horizon, m, n]``: the plant flown from its start
+    state with no process noise and no action noise, its raw states ``x_t [horizon, n_x]`` and
+    the changes ``Δu_t [horizon, m]`` the policy made (the applied change under a delay's
+    ``latency`` reading, the commanded one under ``fifo``: what the learner records).
+
+    ``ValueError`` when the flight leaves the safe region (``plant.stop_norm``): it is then no
+    trajectory of the task."""
+    task = plant.task._replace(noise_std=0.0)
+    quiet = make_plant(
+        task, plant.dynamics, stop_norm=plant.stop_norm, nu_pending=plant.nu_pending,
+        cost_cap=plant.cost_cap, delay_mode=plant.delay_mode,
+    )  # fmt: skip
+    flight = jax.jit(quiet.rollout)(jnp.asarray(K, jnp.float64), jax.random.key(0), 0.0)
+    if not bool(jnp.all(flight.mask)):
+        first = int(jnp.argmin(flight.mask))
+        raise ValueError(f"the planned flight leaves the safe region at step {first}")
+    return Centre(flight.x, flight.du)
+
+
 def nu_trajectory(
-    plant: Plant, *, state_var: float = 0.0025, action_var: float = 0.0001
+    plant: Plant,
+    *,
+    state_var: float = 0.0025,
+    action_var: float = 0.0001,
+    centre: Centre | None = None,
 ) -> Sampler:
     """``ν_t``: noise around the desired trajectory (state covariance ``state_var·I`` through the
-    error coordinates, action covariance ``action_var·I``)."""
+    error coordinates, action covariance ``action_var·I``), centred on ``centre`` (default: the
+    task's target, no action)."""
     if state_var < 0 or action_var < 0:
         raise ValueError(
             f"variances must be >= 0, got state_var={state_var}, action_var={action_var}"
         )
-    target = jnp.asarray(plant.task.target, dtype=jnp.float64)
+    if centre is None:
+        centre = Centre(plant.task.target)
+    states = jnp.asarray(centre.states, dtype=jnp.float64)
+    actions = None if centre.actions is None else jnp.asarray(centre.actions, jnp.float64)
     n, m = plant.n_state, plant.n_action
 
     def sample(key: jax.Array, count: int) -> Transitions:
@@ -61,8 +103,10 @@ def nu_trajectory(
         t = jax.random.randint(k_t, (count,), 0, plant.horizon, dtype=jnp.int32)
         xi = math.sqrt(state_var) * jax.random.normal(k_s, (count, n - 1), dtype=jnp.float64)
         dx = jnp.concatenate([xi, jnp.ones((count, 1), jnp.float64)], axis=1)
-        x = jax.vmap(plant.dynamics.from_error)(dx, target[t])
+        x = jax.vmap(plant.dynamics.from_error)(dx, states[t])
         du = math.sqrt(action_var) * jax.random.normal(k_a, (count, m), dtype=jnp.float64)
+        if actions is not None:
+            du = actions[t] + du
         return _query_many(plant, x, du, t, k_q)
 
     return sample
@@ -107,10 +151,12 @@ def make_nu(
     state_var: float = 0.0025,
     action_var: float = 0.0001,
     expert_action_var: float = 0.0001,
+    centre: Centre | None = None,
 ) -> Sampler:
-    """The sampler for ``kind`` in :data:`NU_KINDS` (``"t"``, ``"e"``, ``"en"``)."""
+    """The sampler for ``kind`` in :data:`NU_KINDS` (``"t"``, ``"e"``, ``"en"``); ``centre``:
+    ν_t's (:func:`nu_trajectory`)."""
     if kind == "t":
-        return nu_trajectory(plant, state_var=state_var, action_var=action_var)
+        return nu_trajectory(plant, state_var=state_var, action_var=action_var, centre=centre)
     if kind == "e":
         return nu_expert(plant, K_expert, action_std=0.0)
     if kind == "en":
@@ -121,9 +167,9 @@ def make_nu(
 
 
 def make_nus(plant: Plant, K_expert: jax.Array, **variances) -> list[Sampler]:
-    """The samplers of :data:`NU_KINDS`, ``[ν_t, ν_e, ν_en]`` (``variances``: those of
-    :func:`make_nu`), with ν_en at its own action noise on ν_e's :func:`expert_draw`
-    (:class:`~loopid.algorithms.contracts.SharedSampler`), so that a program serving all three
-    holds the expert's rollouts once."""
+    """The samplers of :data:`NU_KINDS`, ``[ν_t, ν_e, ν_en]`` (``variances``: the keywords of
+    :func:`make_nu`, ν_t's ``centre`` too), with ν_en at its own action noise on ν_e's
+    :func:`expert_draw` (:class:`~loopid.algorithms.contracts.SharedSampler`), so that a
+    program serving all three holds the expert's rollouts once."""
     t, e, en = (make_nu(kind, plant, K_expert, **variances) for kind in NU_KINDS)
     return [t, e, SharedSampler(e.draw, en.param)]

@@ -28,11 +28,13 @@ def test_presets_set_every_reading_field_and_differ_where_documented():
     for p in PRESETS.values():
         assert set(p) == set(READING_FIELDS)
     differ = {k for k in READING_FIELDS if PRESETS["probable"][k] != PRESETS["literal"][k]}
-    assert differ == {"delay_mode", "funnel_nominal", "pg_samples"}
+    assert differ == {"delay_mode", "funnel_nominal", "pg_samples", "pg_update", "nu_t_center"}
     assert PRESETS["literal"] == {
         "delay_mode": "fifo", "nu_pending": "hold", "funnel_nominal": "spec", "pads": True,
-        "pg_samples": "transitions", "pg_update": "conservative",
+        "pg_samples": "transitions", "pg_update": "conservative", "nu_t_center": "target",
     }  # fmt: skip
+    assert PRESETS["probable"]["pg_update"] == "descent"
+    assert PRESETS["probable"]["nu_t_center"] == "nominal"
 
 
 def test_the_packaged_scenarios_and_the_dataclass_carry_the_probable_readings():
@@ -44,6 +46,7 @@ def test_the_packaged_scenarios_and_the_dataclass_carry_the_probable_readings():
     assert SCENARIOS["hover-delay"].delay_mode == "latency"
     assert SCENARIOS["funnel"].funnel_nominal == "heading"
     assert SCENARIOS["hover"].pg_samples == "rollouts"
+    assert SCENARIOS["funnel"].nu_t_center == "nominal"
 
 
 def test_unknown_preset_is_one_line_listing_the_presets():
@@ -113,6 +116,19 @@ def test_continue_hint_names_the_preset_or_the_fields():
     old = _config(PRESETS["literal"], drop=READING_FIELDS)
     assert readings_of(old["scenario"]["hover"]) == PRESETS["literal"]
     assert continue_hint(old, new) == "--readings literal"
+
+
+#: The preset ``probable`` before ν_t's centre and the policy gradient's step were among its
+#: readings: a run directory made then recorded these values and no ``nu_t_center``.
+OLD_PROBABLE = {**PRESETS["probable"], "pg_update": "conservative", "nu_t_center": "target"}
+
+
+def test_a_run_made_under_the_older_probable_is_named_by_the_fields_that_continue_it():
+    new = _config(None)
+    old = _config(OLD_PROBABLE, drop=("nu_t_center",))
+    assert readings_of(old["scenario"]["funnel"]) == OLD_PROBABLE
+    hint = continue_hint(old, new)
+    assert hint == "--set pg_update=conservative --set nu_t_center=target"
 
 
 @pytest.mark.parametrize("drop", [(), READING_FIELDS])

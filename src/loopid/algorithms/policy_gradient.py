@@ -43,20 +43,20 @@ Two readings of "samples", ``samples_mode`` (the scenario's ``pg_samples``):
 Two readings of the step, ``update`` (the scenario's ``pg_update``), for the footnote's "same as
 CPI, except gradient descent is done directly on deterministic linear controller":
 
-- ``"conservative"`` (the default; steps 1-4 above): CPI's conservative update, a step of the
-  trust radius along the normalised estimate, taken only if it lowers the cost on the shared
-  draw. Under ``rollouts`` the sample count barely matters: once ``P ≥ d`` one shared draw
-  determines the system, so ``g`` is that draw's gradient whatever m is (the estimates of
-  m = 100 and m = 500 from the same key have cosine 0.95-0.99 on hover), and every step is
-  accepted, so the radius never shrinks and θ moves by ρ_1 per iteration
+- ``"conservative"`` (this module's default and the ``literal`` preset's; steps 1-4 above): CPI's
+  conservative update, a step of the trust radius along the normalised estimate, taken only if it
+  lowers the cost on the shared draw. Under ``rollouts`` the sample count barely matters: once
+  ``P ≥ d`` one shared draw determines the system, so ``g`` is that draw's gradient whatever m is
+  (the estimates of m = 100 and m = 500 from the same key have cosine 0.95-0.99 on hover), and
+  every step is accepted, so the radius never shrinks and θ moves by ρ_1 per iteration
   (``examples/pg_sample_count.py``). The pace is set by ρ_1, not by m.
-- ``"descent"``: plain gradient descent on noisy samples, ``θ ← θ − α g`` in scaled
-  coordinates, always taken. Every rollout of an iteration has its own noise draw (a sample
-  is one rollout's measured cost, as on a real system), so the estimate's noise falls as m
-  grows: the paper's own account of its baseline (100 samples "insufficient to get good
-  gradient estimates", 500 better). The step size α is set once, at the first iteration, so
-  that the first step is as long as the first trust radius (``α = ρ_1 / ‖g_1‖``): no new
-  setting; later steps scale with the estimate's length.
+- ``"descent"`` (the scenarios' default, preset ``probable``): plain gradient descent on noisy
+  samples, ``θ ← θ − α g`` in scaled coordinates, always taken. Every rollout of an iteration has
+  its own noise draw (a sample is one rollout's measured cost, as on a real system), so the
+  estimate's noise falls as m grows: the paper's own account of its baseline (100 samples
+  "insufficient to get good gradient estimates", 500 better). The step size α is set once, at the
+  first iteration, so that the first step is as long as the first trust radius
+  (``α = ρ_1 / ‖g_1‖``): no new setting; later steps scale with the estimate's length.
 
 The memory holds ``L = max(d, P + 1)`` rollouts: d so that the system can be square from
 several iterations' probes when P < d (the transitions reading: 2 probes a step); P + 1 so that

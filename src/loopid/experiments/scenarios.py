@@ -24,6 +24,7 @@ from loopid.experiments import model_planner
 from loopid.experiments.config import check_int, check_number, read_flat_file, replaced
 from loopid.experiments.readings import (
     DEFAULT_PRESET,
+    NU_T_CENTERS,
     PRESETS,
     READING_FIELDS,
     reading_text,
@@ -50,14 +51,16 @@ class Scenario(model_planner.ModelPlanner):
       gamma: stopping parameter of ``geometric`` sampling (stop w.p. 1 − γ per step).
       dagger_fraction: DAgger's probability that a slot comes from the current policy.
       stop_norm: training trajectories restart when ‖[Δx; Δu]‖₂ exceeds this.
-      nu_pending, delay_mode, funnel_nominal, pads, pg_samples, pg_update: the readings of the
+      nu_pending, delay_mode, funnel_nominal, pads, pg_samples, pg_update, nu_t_center: the
+        readings of the
         details the paper leaves open (:mod:`loopid.experiments.readings`); their defaults are
         the preset
         ``probable``: ``delay_mode = "latency"`` (the policy acts at once on the state observed
         d steps earlier; the learner records the true transition), ``nu_pending = "hold"``
         (used under ``fifo`` only), ``funnel_nominal = "heading"``, ``pads = True`` and
-        ``pg_samples = "rollouts"`` (one perturbed-gain rollout per sample) and ``pg_update =
-        "conservative"`` (CPI's conservative step on one shared noise draw).
+        ``pg_samples = "rollouts"`` (one perturbed-gain rollout per sample), ``pg_update =
+        "descent"`` (gradient descent, each rollout its own noise) and ``nu_t_center =
+        "nominal"`` (ν_t's noise around the expert's planned flight).
       nu_state_var, nu_action_var: ν_t's state and action noise variances.
       expert_action_var: ν_en's action noise variance.
       ftrl_lambda: λ of the FTRL regulariser (λ/√n)‖W‖²_F.
@@ -89,6 +92,7 @@ class Scenario(model_planner.ModelPlanner):
     funnel_nominal: str = PRESETS[DEFAULT_PRESET]["funnel_nominal"]
     pg_samples: str = PRESETS[DEFAULT_PRESET]["pg_samples"]
     pg_update: str = PRESETS[DEFAULT_PRESET]["pg_update"]
+    nu_t_center: str = PRESETS[DEFAULT_PRESET]["nu_t_center"]
     nu_state_var: float = 0.0025
     nu_action_var: float = 0.0001
     expert_action_var: float = 0.0001
@@ -154,6 +158,10 @@ def validate(s: Scenario) -> None:
         raise ValueError(f"pg_samples must be one of {', '.join(PG_SAMPLES)}, got {s.pg_samples!r}")
     if s.pg_update not in PG_UPDATES:
         raise ValueError(f"pg_update must be one of {', '.join(PG_UPDATES)}, got {s.pg_update!r}")
+    if s.nu_t_center not in NU_T_CENTERS:
+        raise ValueError(
+            f"nu_t_center must be one of {', '.join(NU_T_CENTERS)}, got {s.nu_t_center!r}"
+        )
     check_number("gamma", s.gamma, 0.0, 1.0 - 1e-12, open_low=True)
     check_number("dagger_fraction", s.dagger_fraction, 0.0, 1.0)
     check_number("stop_norm", s.stop_norm, 0.0, open_low=True)

@@ -18,11 +18,16 @@ Why a method is untouched by a field (the cells a reading inherits):
   only ν queries change: L and PG draw none; under ``rollout`` ν_t is queried as under
   ``hold``, so D_t and B_t are the ``fifo`` reading's;
 - ``funnel_nominal``: the expert is iLQR on the true simulator (no nominal);
-- ``pg_samples``: only the policy gradient.
+- ``pg_samples``, ``pg_update``: only the policy gradient;
+- ``nu_t_center``: only ν_t's draws, so only D_t and B_t. On hover ``trim`` is ``target`` bit
+  for bit (the hover target holds the trim controls), so ``nu-t-trim`` runs the funnel alone and
+  takes the hover panels from ``nu-t-target``.
 
 The ``literal`` reading takes each cell from the one-factor reading that changes it (``fifo``,
-``spec``, ``pg-transitions``), which is exact because those parts touch disjoint cells, except
-the funnel's policy gradient, which two of its fields reach, and which it runs itself.
+``spec``, ``nu-t-target``), which is exact because those parts touch disjoint cells, except the
+cells that two of its fields reach, which it runs itself: the policy gradient (``pg_samples``
+and ``pg_update``) on every panel, and D_t and B_t (``nu_t_center`` with ``delay_mode`` or
+``funnel_nominal``).
 """
 
 from typing import NamedTuple
@@ -59,14 +64,16 @@ class Reading(NamedTuple):
 
 ALL_PANELS = tuple(SCENARIOS)
 NU_E_METHODS = ("dagger-e", "dagger-en", "batch-e", "batch-en", "abbeel")
+NU_T_METHODS = ("dagger-t", "batch-t")
 FIFO = {"delay_mode": "fifo"}
 
 READINGS: tuple[Reading, ...] = (
     Reading("probable", "default", "probable (the default)", {}, ALL_PANELS, METHODS),
     Reading(
         "literal", "literal", "delay_mode = fifo, funnel_nominal = spec, "
-        "pg_samples = transitions", dict(PRESETS["literal"]), ALL_PANELS, ("pg",),
-        parts=("fifo", "spec", "pg-transitions"), runs_on=("funnel",),
+        "pg_samples = transitions, pg_update = conservative, nu_t_center = target",
+        dict(PRESETS["literal"]), ALL_PANELS, ("pg", *NU_T_METHODS),
+        parts=("fifo", "spec", "nu-t-target"),
     ),
     Reading(
         "fifo", "delay", "delay_mode = fifo", FIFO, ("hover-delay",), LEARNING_METHODS,
@@ -97,11 +104,20 @@ READINGS: tuple[Reading, ...] = (
         ALL_PANELS, ("pg",),
     ),
     Reading(
-        "pg-descent", "pg", "pg_update = descent", {"pg_update": "descent"}, ALL_PANELS, ("pg",),
+        "pg-conservative", "pg", "pg_update = conservative", {"pg_update": "conservative"},
+        ALL_PANELS, ("pg",),
+    ),
+    Reading(
+        "nu-t-target", "nu-t", "nu_t_center = target", {"nu_t_center": "target"}, ALL_PANELS,
+        NU_T_METHODS,
+    ),
+    Reading(
+        "nu-t-trim", "nu-t", "nu_t_center = trim", {"nu_t_center": "trim"}, ALL_PANELS,
+        NU_T_METHODS, parts=("nu-t-target",), runs_on=("funnel",),
     ),
 )  # fmt: skip
 BY_ID = {r.id: r for r in READINGS}
-FIGURES = ("delay", "funnel", "pg", "literal")
+FIGURES = ("delay", "funnel", "pg", "nu-t", "literal")
 DEFAULT = DEFAULT_PRESET  # the default reading is the default preset, run by reproduce
 
 

@@ -22,7 +22,7 @@ from loopid.algorithms.loop import Agent, LoopProgram, make_loop_program, seed_k
 from loopid.algorithms.plant import Plant
 from loopid.experiments import model_planner
 from loopid.experiments.scenarios import Scenario
-from loopid.exploration import make_nus
+from loopid.exploration import Centre, make_nus, planned_flight
 from loopid.models.linear_offset import LinearOffsetModel
 from loopid.systems import helicopter
 from loopid.systems.tasks import make_task
@@ -109,6 +109,7 @@ def _setup(key: Scenario) -> Setup:
     nus = make_nus(
         plant, K_expert, state_var=key.nu_state_var, action_var=key.nu_action_var,
         expert_action_var=key.expert_action_var,
+        centre=nu_t_centre(key.nu_t_center, plant, K_expert),
     )  # fmt: skip
     flown, controller, replan = None, None, None
     if key.planner_kind == "mpc":  # MPC flies the seed's learned model (its parameters)
@@ -134,6 +135,27 @@ def _setup(key: Scenario) -> Setup:
         return _noise(key, tuple(int(seed) for seed in seeds))  # a hashable cache key
 
     return Setup(plant, K_expert, nominal, model, agent, nus, program, flown, replan, test_noise)
+
+
+def nu_t_centre(reading: str, plant: Plant, K_expert: jax.Array) -> Centre | None:
+    """What ν_t draws around under the reading ``nu_t_center``
+    (:data:`loopid.experiments.readings.NU_T_CENTERS`):
+
+    - ``target``: the cost's target with no action (None: :func:`loopid.exploration.nu_trajectory`'s
+      default). On the funnel that target has no collective and a level attitude.
+    - ``trim``: the target's states with the hover-trim controls in their previous-action
+      entries, no action.
+    - ``nominal``: the expert's planned flight, its states and its changes ``Δu``
+      (:func:`loopid.exploration.planned_flight`): on hover the trim itself, to round-off.
+    """
+    if reading == "target":
+        return None
+    if reading == "trim":
+        target = jnp.asarray(plant.task.target, jnp.float64)
+        return Centre(target.at[:, helicopter.U_PREV].set(helicopter.hover_trim().u))
+    if reading == "nominal":
+        return planned_flight(plant, K_expert)
+    raise ValueError(f"unknown nu_t_center {reading!r}")
 
 
 def _alternatives(key: Scenario):
