@@ -1,14 +1,26 @@
 """The paper's five findings (what its Figure 2 shows, section 6), each computed from a results
-table and marked *holds* / *does not hold*; ``report.md`` of a helicopter run and ``study.md``
-show them.
+table and given a verdict; ``report.md`` of a helicopter run and ``study.md`` show them.
 
 The statistics, per panel (scenario) and method, are over seeds of the test cost at the method's
 **final** iteration (``final``), or at iteration 2 (``first``, the first policy fitted to data).
-Each finding is judged on **medians** over seeds (a few diverging seeds, capped at ``cost_cap``,
-dominate means) and, for comparison, on means. Nothing is tuned to make a finding hold.
+Two kinds of judgement make a finding:
+
+- **comparisons** "A below B" (findings 1, 3 and 4) are paired over seeds, since the same seeds
+  see the same noise (:mod:`loopid.experiments.paired`): a two-sided Wilcoxon signed-rank test on
+  the per-seed differences, each comparison reading ``holds``, ``does not hold``, ``tie`` or
+  ``too few seeds``;
+- **thresholds** (findings 2 and 5) on the statistic over seeds, ``holds`` or ``does not hold``.
+
+A finding's verdict over them is :func:`loopid.experiments.paired.combine`'s: ``holds``,
+``holds with ties``, ``does not hold``, ``tie``, ``too few seeds`` or ``not measured``. Each
+finding is judged on **medians** over seeds (a few diverging seeds, capped at ``cost_cap``,
+dominate means; for comparisons: the signed-rank test) and, beside it, on means (for comparisons:
+the paired t-test). Nothing is tuned to make a finding hold.
 
 "Good performance" (findings 2 and 5) is a fixed threshold chosen before looking at any result:
 a final cost at most :data:`GOOD_FACTOR` times the linearised expert L's in the same panel.
+"Only small improvement" (finding 5) is a fixed bound :data:`SMALL_IMPROVEMENT` on how much the
+policy gradient lowers its first policy's cost, also chosen before any protocol-scale run.
 """
 
 from collections.abc import Callable
@@ -17,15 +29,34 @@ from typing import NamedTuple
 import numpy as np
 import pyarrow as pa
 
+from loopid.experiments.paired import (
+    FAILS,
+    HOLDS,
+    VERDICT_WORDS,
+    Comparison,
+    below,
+    combine,
+    pair,
+)
+
 #: "Good performance": final cost at most this multiple of the expert's (findings 2 and 5).
 GOOD_FACTOR = 2.0
+#: The paper on the policy gradient in hover: "100 samples per iteration were insufficient to
+#: get good gradient estimates and lead to only small improvement". "Only small improvement"
+#: means the policy gradient at most halves its first policy's median cost (log10 2 ≈ 0.3
+#: decades on Figure 2's log axis): improvement factor = cost at iteration 1 / final cost <= this.
+#: Fixed before any 20-seed run; not to be tuned.
+SMALL_IMPROVEMENT = 2.0
 NUS = ("t", "e", "en")
 STATS: dict[str, Callable[[np.ndarray], float]] = {"median": np.median, "mean": np.mean}
 
 
 class Finding(NamedTuple):
     """One of the paper's five findings: ``verdict`` on medians, ``mean_verdict`` on means (each
-    ``holds``, ``does not hold`` or ``not measured``), how it was computed, and the numbers."""
+    ``holds``, ``holds with ties``, ``does not hold``, ``tie``, ``too few seeds`` or
+    ``not measured``), how it was computed, the numbers (``details``), and each comparison's or
+    threshold's outcome in the order of the details (``outcomes`` on medians, ``mean_outcomes``
+    on means)."""
 
     number: int
     claim: str
@@ -33,6 +64,8 @@ class Finding(NamedTuple):
     verdict: str
     mean_verdict: str
     details: list[str]
+    outcomes: tuple[str, ...] = ()
+    mean_outcomes: tuple[str, ...] = ()
 
 
 class Costs:
@@ -41,6 +74,7 @@ class Costs:
     def __init__(self, table: pa.Table):
         self.scenario = np.asarray(table.column("scenario").to_pylist(), dtype=object)
         self.method = np.asarray(table.column("method").to_pylist(), dtype=object)
+        self.seed = np.asarray(table.column("seed"))
         self.iteration = np.asarray(table.column("iteration"))
         self.cost = np.asarray(table.column("test_cost"))
         self.diverged = np.asarray(table.column("diverged"))
@@ -53,10 +87,21 @@ class Costs:
     def last_iteration(self, s: str, m: str) -> int:
         return int(self.iteration[(self.scenario == s) & (self.method == m)].max())
 
+    def _rows(self, s: str, m: str, iteration: int | None) -> np.ndarray:
+        it = self.last_iteration(s, m) if iteration is None else iteration
+        return (self.scenario == s) & (self.method == m) & (self.iteration == it)
+
     def at(self, s: str, m: str, iteration: int | None = None) -> np.ndarray:
         """``[seeds]`` test costs at ``iteration`` (default: the final one)."""
-        it = self.last_iteration(s, m) if iteration is None else iteration
-        return self.cost[(self.scenario == s) & (self.method == m) & (self.iteration == it)]
+        return self.cost[self._rows(s, m, iteration)]
+
+    def paired(
+        self, s: str, a: str, b: str, it_a: int | None = None, it_b: int | None = None
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """The test costs of methods ``a`` (at ``it_a``) and ``b`` (at ``it_b``; default: each
+        one's final iteration) on the seeds both ran, aligned by seed."""
+        ra, rb = self._rows(s, a, it_a), self._rows(s, b, it_b)
+        return pair(self.seed[ra], self.cost[ra], self.seed[rb], self.cost[rb])
 
     def diverged_seeds(self, s: str, m: str) -> int:
         """Seeds with at least one diverged test trajectory at the final iteration."""
@@ -69,49 +114,58 @@ def _g(x: float) -> str:
     return f"{x:.4g}"
 
 
-def _verdict(results: list[bool]) -> str:
-    if not results:
-        return "not measured"
-    return "holds" if all(results) else "does not hold"
+#: What a finding's check returns, per detail line: the outcomes it judges, and the line.
+Lines = list[tuple[tuple[str, ...], str]]
 
 
-def _judge(number, claim, how, check) -> Finding:
-    """Run ``check(stat) -> (list of bools, detail lines)`` on medians and on means; the details
-    are the median lines, each followed by its mean line where the outcome differs."""
-    ok_med, details = check(STATS["median"])
-    ok_mean, mean_details = check(STATS["mean"])
-    lines = []
-    for a, b, d, dm in zip(ok_med, ok_mean, details, mean_details, strict=False):
-        lines.append(d if a == b else f"{d}; on means: {dm}")
-    lines += details[len(ok_med) :]  # lines that judge nothing (none at present)
-    return Finding(number, claim, how, _verdict(ok_med), _verdict(ok_mean), lines)
+def _judge(number: int, claim: str, how: str, check: Callable[[str], Lines]) -> Finding:
+    """Run ``check(on)`` (``on``: ``"median"`` or ``"mean"``) on medians and on means; the
+    details are the median lines, each followed by its mean line where an outcome differs."""
+    med, mean = check("median"), check("mean")
+    lines = [
+        d if o == om else f"{d}; on means: {dm}" for (o, d), (om, dm) in zip(med, mean, strict=True)
+    ]
+    outcomes = tuple(x for o, _ in med for x in o)
+    mean_outcomes = tuple(x for o, _ in mean for x in o)
+    return Finding(
+        number, claim, how, combine(list(outcomes)), combine(list(mean_outcomes)), lines,
+        outcomes, mean_outcomes,
+    )  # fmt: skip
+
+
+def _ok(b: bool) -> str:
+    return HOLDS if b else FAILS
 
 
 def findings(table: pa.Table, hover_panels: set[str] | None = None) -> list[Finding]:
     """The paper's five findings computed from ``table``.
 
-    ``hover_panels``: the scenarios whose task is a hover (finding 3; none when not given).
+    ``hover_panels``: the scenarios whose task is a hover (findings 3 and 5; none when not
+    given).
     """
     c = Costs(table)
     hover_panels = hover_panels or set()
     hover = [s for s in c.scenarios if s in hover_panels]
 
-    def f1(stat):
-        ok, out = [], []
+    def cmp(on: str, s: str, a: str, b: str, it_a=None, it_b=None) -> Comparison:
+        return below(*c.paired(s, a, b, it_a, it_b), on=on)
+
+    def f1(on: str) -> Lines:
+        stat, out = STATS[on], []
         for s in c.scenarios:
             for nu in NUS:
                 d, b = f"dagger-{nu}", f"batch-{nu}"
                 if c.has(s, d) and c.has(s, b):
+                    r = cmp(on, s, d, b)
                     dv, bv = stat(c.at(s, d)), stat(c.at(s, b))
-                    ok.append(dv < bv)
-                    out.append(f"{s} ν_{nu}: D {_g(dv)} {'<' if dv < bv else '>='} B {_g(bv)}")
-        return ok, out
+                    out.append(((r.outcome,), f"{s} ν_{nu}: D {_g(dv)}, B {_g(bv)}: {r.text()}"))
+        return out
 
     def good(stat, s, m):
         return stat(c.at(s, m)) <= GOOD_FACTOR * stat(c.at(s, "expert"))
 
-    def f2(stat):
-        ok, out = [], []
+    def f2(on: str) -> Lines:
+        stat, out = STATS[on], []
         for s in c.scenarios:
             ds = [f"dagger-{nu}" for nu in NUS if c.has(s, f"dagger-{nu}")]
             bs = [f"batch-{nu}" for nu in NUS if c.has(s, f"batch-{nu}")]
@@ -119,16 +173,16 @@ def findings(table: pa.Table, hover_panels: set[str] | None = None) -> list[Find
                 continue
             d_good = [m for m in ds if good(stat, s, m)]
             b_good = [m for m in bs if good(stat, s, m)]
-            ok.append(len(d_good) == 3 and len(b_good) == 1)
-            out.append(
+            line = (
                 f"{s}: good DAgger {len(d_good)}/3 ({', '.join(d_good) or 'none'}), "
                 f"good Batch {len(b_good)}/3 ({', '.join(b_good) or 'none'}); "
                 f"L {_g(stat(c.at(s, 'expert')))}"
             )
-        return ok, out
+            out.append(((_ok(len(d_good) == 3 and len(b_good) == 1),), line))
+        return out
 
-    def f3(stat):
-        ok, out = [], []
+    def f3(on: str) -> Lines:
+        stat, out = STATS[on], []
         for s in hover:
             if not c.has(s, "expert"):
                 continue
@@ -136,49 +190,54 @@ def findings(table: pa.Table, hover_panels: set[str] | None = None) -> list[Find
             for nu in NUS:
                 d = f"dagger-{nu}"
                 if c.has(s, d):
-                    v = stat(c.at(s, d))
-                    ok.append(v < L)
-                    out.append(f"{s} D_{nu} {_g(v)} {'<' if v < L else '>='} L {_g(L)}")
-        return ok, out
+                    r = cmp(on, s, d, "expert")
+                    line = f"{s} D_{nu} {_g(stat(c.at(s, d)))}, L {_g(L)}: {r.text()}"
+                    out.append(((r.outcome,), line))
+        return out
 
-    def f4(stat):
-        ok, out = [], []
+    def f4(on: str) -> Lines:
+        stat, out = STATS[on], []
         for s in c.scenarios:
             ds = [f"dagger-{nu}" for nu in NUS if c.has(s, f"dagger-{nu}")]
             if not c.has(s, "abbeel") or not ds or c.last_iteration(s, "abbeel") < 2:
                 continue
             first, final = stat(c.at(s, "abbeel", 2)), stat(c.at(s, "abbeel"))
             best = min(ds, key=lambda m: stat(c.at(s, m)))
-            bv = stat(c.at(s, best))
-            ok.append(final < first and final > bv)
-            out.append(
-                f"{s}: A first {_g(first)} -> final {_g(final)} "
-                f"({'improves' if final < first else 'no improvement'}); "
-                f"best DAgger {best} {_g(bv)} ({'A above' if final > bv else 'A not above'})"
+            improves = cmp(on, s, "abbeel", "abbeel", None, 2)
+            above = cmp(on, s, best, "abbeel")
+            line = (
+                f"{s}: A first {_g(first)} -> final {_g(final)}, improves: {improves.text()}; "
+                f"best DAgger {best} {_g(stat(c.at(s, best)))} below A: {above.text()}"
             )
-        return ok, out
+            out.append(((improves.outcome, above.outcome), line))
+        return out
 
-    def f5(stat):
-        ok, out = [], []
-        for s in c.scenarios:
+    def factor(stat, s: str) -> float:
+        return stat(c.at(s, "pg", 1)) / stat(c.at(s, "pg"))
+
+    def f5(on: str) -> Lines:
+        stat, out = STATS[on], []
+        for s in hover:
             if not c.has(s, "pg") or not c.has(s, "expert"):
                 continue
-            first, final = stat(c.at(s, "pg", 1)), stat(c.at(s, "pg"))
-            L = stat(c.at(s, "expert"))
-            ok.append(final > GOOD_FACTOR * L)
-            out.append(
-                f"{s}: PG {_g(first)} -> {_g(final)} (x{first / final:.3g} better), "
-                f"{final / L:.3g} x L"
+            final, L = stat(c.at(s, "pg")), stat(c.at(s, "expert"))
+            ok = factor(stat, s) <= SMALL_IMPROVEMENT and final > GOOD_FACTOR * L
+            line = (
+                f"{s}: improvement from iteration 1 x{factor(np.median, s):.3g} on medians, "
+                f"x{factor(np.mean, s):.3g} on means (small: <= x{SMALL_IMPROVEMENT:g}); "
+                f"PG {_g(stat(c.at(s, 'pg', 1)))} -> {_g(final)}, {final / L:.3g} x L"
             )
-        return ok, out
+            out.append(((_ok(ok),), line))
+        return out
 
     good_txt = f"'good' = final cost <= {GOOD_FACTOR:g} x L's in the same panel"
+    paired_txt = "paired over seeds (signed-rank test)"
     return [
         _judge(
             1,
             "For every ν and in all panels, DAgger ends below Batch with the same ν.",
-            "For each panel and ν in {t, e, en}: final(dagger-ν) < final(batch-ν); "
-            "holds if every comparison does.",
+            f"For each panel and ν in {{t, e, en}}: final(dagger-ν) below final(batch-ν), "
+            f"{paired_txt}; holds if every comparison does.",
             f1,
         ),
         _judge(
@@ -191,22 +250,24 @@ def findings(table: pa.Table, hover_panels: set[str] | None = None) -> list[Find
         _judge(
             3,
             "In hover (both delays) DAgger ends below the linearised expert L.",
-            "For each hover panel and ν: final(dagger-ν) < final(expert); holds if every one does.",
+            f"For each hover panel and ν: final(dagger-ν) below final(expert), {paired_txt}; "
+            "holds if every comparison does.",
             f3,
         ),
         _judge(
             4,
             "Abbeel's algorithm improves on its first policy, then plateaus above DAgger.",
-            "For each panel: final(abbeel) < first(abbeel) (iteration 2, the policy fitted to "
-            "the expert's data) and final(abbeel) > the best final(dagger-ν); holds if both do "
-            "in every panel.",
+            f"For each panel, {paired_txt}: final(abbeel) below first(abbeel) (iteration 2, the "
+            "policy fitted to the expert's data), and the best final(dagger-ν) below "
+            "final(abbeel); holds if both do in every panel.",
             f4,
         ),
         _judge(
             5,
-            "The policy-gradient baseline improves little with 100 samples per iteration.",
-            f"For each panel: PG does not reach good performance ({good_txt}): final(pg) > "
-            f"{GOOD_FACTOR:g} x final(expert); the improvement from iteration 1 is shown.",
+            "The policy-gradient baseline improves little with 100 samples per iteration (hover).",
+            "For each hover panel: the improvement factor cost(pg, iteration 1) / final(pg) is at "
+            f"most {SMALL_IMPROVEMENT:g} ('only small improvement': at most halves its first "
+            f"policy's cost) and PG does not reach good performance ({good_txt}).",
             f5,
         ),
     ]
@@ -218,8 +279,11 @@ def findings_section(table: pa.Table, hover_panels: set[str] | None = None) -> l
         "## The paper's findings",
         "",
         "Verdicts on medians over seeds (a few diverging seeds dominate means); the "
-        "verdict on means follows, and a comparison whose outcome differs on means says so. "
-        "`final(m)` is the test cost at method m's last iteration; numbers are medians.",
+        "verdict on means follows, and a line whose outcome differs on means says so. "
+        "`final(m)` is the test cost at method m's last iteration; numbers are medians, "
+        "`shift` the estimated per-seed difference A − B (Hodges–Lehmann; on means, the mean).",
+        "",
+        VERDICT_WORDS,
         "",
     ]
     seeds = len(np.unique(np.asarray(table.column("seed"))))

@@ -5,7 +5,7 @@ table, each panel under its own name, with the columns ``reading`` and the readi
 ``study.md`` (per reading: final medians per panel and method, the paper's five findings
 computed from the table, and for the funnel each nominal's one-step prediction error along the
 expert's flight) and one figure per figure group (``study_delay.png``, ``study_funnel.png``,
-``study_pg.png``, ``study_literal.png``, in the layout of Figure 2).
+``study_pg.png``, ``study_nu-t.png``, ``study_literal.png``, in the layout of Figure 2).
 """
 
 from pathlib import Path
@@ -15,6 +15,7 @@ import pyarrow as pa
 import pyarrow.compute as pc
 
 from loopid.algorithms.methods import METHODS
+from loopid.experiments.paired import VERDICT_WORDS
 from loopid.experiments.readings import DEFAULT_PRESET, PRESETS, READING_FIELDS, reading_text
 from loopid.experiments.results import concat, write_atomic_bytes
 from loopid.experiments.scenarios import Scenario
@@ -78,13 +79,17 @@ def medians_table(table: pa.Table) -> list[str]:
 
 def reading_findings(table: pa.Table, r: Reading, base: dict[str, Scenario]) -> list:
     """The paper's five findings (:func:`loopid.experiments.findings.findings`) on reading
-    ``r``'s panels, each holds / does not hold."""
+    ``r``'s panels, each with its verdict (:func:`loopid.experiments.paired.combine`)."""
     from loopid.experiments.findings import findings
 
     hover = {p for p in r.panels if base[p].task in ("hover", "hover-delay")}
     sub = _subtable(table, r.id)
     sub = sub.filter(pc.is_in(sub["scenario"], pa.array(list(r.panels), pa.string())))
     return findings(sub, hover)
+
+
+#: The figures that draw one set of methods under each reading beside the default's.
+SWEPT_METHODS = {"pg": ("pg",), "nu-t": ("dagger-t", "batch-t")}
 
 
 def figures(table: pa.Table, out: Path) -> list[Path]:
@@ -102,20 +107,22 @@ def figures(table: pa.Table, out: Path) -> list[Path]:
                 for r in rs
                 if _subtable(table, r.id).num_rows
             ]
-        elif group == "pg":
+        elif group in SWEPT_METHODS:  # the default's curves beside each reading's
+            methods = SWEPT_METHODS[group]
+            default = _subtable(table, DEFAULT)
             pieces = []
             for p in ALL_PANELS:
-                default = _subtable(table, DEFAULT)
-                keep = [_cells(default, p, m) for m in ("expert", "pg")]
+                keep = [_cells(default, p, m) for m in ("expert", *methods)]
                 for r in rs:
-                    other = _cells(_subtable(table, r.id), p, "pg")
-                    name = f"pg ({r.label.split(' = ')[-1]})"
-                    other = other.set_column(
-                        other.schema.get_field_index("method"),
-                        "method",
-                        pa.array([name] * other.num_rows, pa.string()),
-                    )
-                    keep.append(other)
+                    for m in methods:
+                        other = _cells(_subtable(table, r.id), p, m)
+                        name = f"{m} ({r.label.split(' = ')[-1]})"
+                        other = other.set_column(
+                            other.schema.get_field_index("method"),
+                            "method",
+                            pa.array([name] * other.num_rows, pa.string()),
+                        )
+                        keep.append(other)
                 pieces.append(relabel(concat(keep), p, p))
         else:
             sub = _subtable(table, rs[0].id)
@@ -172,7 +179,7 @@ def study_text(
             )
         L += [line, ""]
     L += ["## Final medians", "", *medians_table(table), ""]
-    L += ["## The paper's findings under each reading", ""]
+    L += ["## The paper's findings under each reading", "", VERDICT_WORDS, ""]
     L += [
         "| reading | panels | 1 D < B | 2 D good, one B | 3 D < L (hover) | 4 A plateau | "
         "5 PG little |",
