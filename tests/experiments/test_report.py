@@ -68,30 +68,6 @@ def test_every_finding_holds_on_a_paper_like_table():
     assert [f.mean_verdict for f in found] == [f.verdict for f in found]
 
 
-@pytest.mark.parametrize(
-    ("change", "broken"),
-    [
-        # finding 1: one ν in one panel where Batch ends below DAgger
-        ({("funnel", "batch-en"): curve(2.6e6, 40.0)}, {1}),
-        # finding 2: a second good Batch curve (and one DAgger curve never settles)
-        ({("hover", "batch-e"): curve(2.6e6, 70.0)}, {2}),
-        ({("hover-delay", "dagger-e"): curve(2.6e6, 1e8)}, {1, 2, 3}),
-        # finding 3: DAgger approaches L from above in hover (the funnel does not count)
-        ({("hover", "dagger-t"): curve(2.6e6, 52.0)}, {3}),
-        ({("funnel", "dagger-t"): curve(2.6e6, 80.0)}, set()),
-        # finding 4: Abbeel never improves on its first policy / ends below DAgger
-        ({("hover", "abbeel"): curve(2.6e6, 3e6)}, {4}),
-        ({("funnel", "abbeel"): curve(2.6e6, 20.0)}, {4}),
-        # finding 5: PG reaches good performance
-        ({("hover", "pg"): curve(2.6e6, 90.0)}, {5}),
-    ],
-)
-def test_each_finding_fails_when_its_claim_does(change, broken):
-    got = verdicts(paper_like() | change)
-    assert [got[i] for i in (0, 2, 3)] == ["too few seeds"] * 3  # paired: need 6 seeds
-    assert {i + 1 for i, v in enumerate(got) if v == "does not hold"} == broken - {1, 3, 4}
-
-
 def test_medians_and_means_judged_separately():
     """Finding 1 on one ν: DAgger's median is lower but one diverging seed drags its mean above
     Batch's: holds on medians, not on means, and the detail line says so."""
