@@ -218,13 +218,15 @@ def pg_costs(panel: str, factor: float, final: float = 1.5e6) -> dict:
         (1.9, 1.5e6, HOLDS),
         (2.1, 1.5e6, FAILS),  # more than halves its first policy's cost
         (1.5, 90.0, FAILS),  # small improvement, but good (<= 2 x L)
+        (0.8, 1.5e6, FAILS),  # no improvement: it gets worse
+        (1.0, 1.5e6, FAILS),  # no improvement at all
     ],
 )
 def test_finding_5_bounds_the_improvement_in_hover(factor, final, verdict):
     assert findings.SMALL_IMPROVEMENT == 2.0
     f5 = found(pg_costs("hover", factor, final))[4]
     assert (f5.verdict, f5.mean_verdict) == (verdict, verdict)
-    assert f"x{factor:.3g} on medians, x{factor:.3g} on means" in f5.details[0]
+    assert f"x{factor:.3g} (small: above x1, at most x2)" in f5.details[0]
 
 
 def test_finding_5_ignores_panels_that_are_not_hover():

@@ -20,7 +20,9 @@ the paired t-test). Nothing is tuned to make a finding hold.
 "Good performance" (findings 2 and 5) is a fixed threshold chosen before looking at any result:
 a final cost at most :data:`GOOD_FACTOR` times the linearised expert L's in the same panel.
 "Only small improvement" (finding 5) is a fixed bound :data:`SMALL_IMPROVEMENT` on how much the
-policy gradient lowers its first policy's cost, also chosen before any protocol-scale run.
+policy gradient lowers its first policy's cost, read from the paper's words; it was written down
+when 20-seed runs of the policy gradient under both readings of its step were already known,
+so reports show the finding under both (it does not hold under ``pg_update = conservative``).
 """
 
 from collections.abc import Callable
@@ -44,8 +46,8 @@ GOOD_FACTOR = 2.0
 #: The paper on the policy gradient in hover: "100 samples per iteration were insufficient to
 #: get good gradient estimates and lead to only small improvement". "Only small improvement"
 #: means the policy gradient at most halves its first policy's median cost (log10 2 ≈ 0.3
-#: decades on Figure 2's log axis): improvement factor = cost at iteration 1 / final cost <= this.
-#: Fixed before any 20-seed run; not to be tuned.
+#: decades on Figure 2's log axis): 1 < improvement factor (cost at iteration 1 / final cost) <=
+#: this. A policy gradient that gets worse shows no improvement at all: the finding does not hold.
 SMALL_IMPROVEMENT = 2.0
 NUS = ("t", "e", "en")
 STATS: dict[str, Callable[[np.ndarray], float]] = {"median": np.median, "mean": np.mean}
@@ -221,10 +223,10 @@ def findings(table: pa.Table, hover_panels: set[str] | None = None) -> list[Find
             if not c.has(s, "pg") or not c.has(s, "expert"):
                 continue
             final, L = stat(c.at(s, "pg")), stat(c.at(s, "expert"))
-            ok = factor(stat, s) <= SMALL_IMPROVEMENT and final > GOOD_FACTOR * L
+            ok = 1 < factor(stat, s) <= SMALL_IMPROVEMENT and final > GOOD_FACTOR * L
             line = (
-                f"{s}: improvement from iteration 1 x{factor(np.median, s):.3g} on medians, "
-                f"x{factor(np.mean, s):.3g} on means (small: <= x{SMALL_IMPROVEMENT:g}); "
+                f"{s}: improvement from iteration 1 x{factor(stat, s):.3g} (small: above x1, at "
+                f"most x{SMALL_IMPROVEMENT:g}); "
                 f"PG {_g(stat(c.at(s, 'pg', 1)))} -> {_g(final)}, {final / L:.3g} x L"
             )
             out.append(((_ok(ok),), line))
@@ -265,9 +267,10 @@ def findings(table: pa.Table, hover_panels: set[str] | None = None) -> list[Find
         _judge(
             5,
             "The policy-gradient baseline improves little with 100 samples per iteration (hover).",
-            "For each hover panel: the improvement factor cost(pg, iteration 1) / final(pg) is at "
-            f"most {SMALL_IMPROVEMENT:g} ('only small improvement': at most halves its first "
-            f"policy's cost) and PG does not reach good performance ({good_txt}).",
+            "For each hover panel: the improvement factor cost(pg, iteration 1) / final(pg) is "
+            f"above 1 and at most {SMALL_IMPROVEMENT:g} ('only small improvement': it improves, "
+            f"and at most halves its first policy's cost) and PG does not reach good performance "
+            f"({good_txt}).",
             f5,
         ),
     ]

@@ -85,7 +85,11 @@ def pair(
 
 
 def hodges_lehmann(d: np.ndarray) -> float:
-    """The median of the pairwise (Walsh) averages ``(d_i + d_j) / 2``, ``i <= j``."""
+    """The median of the pairwise (Walsh) averages ``(d_i + d_j) / 2``, ``i <= j``, over the
+    nonzero differences (those the signed-rank test ranks; 0 when there are none)."""
+    d = d[d != 0]
+    if not len(d):
+        return 0.0
     i, j = np.triu_indices(len(d))
     return float(np.median((d[i] + d[j]) / 2))
 

@@ -42,8 +42,10 @@ A *preset* is a named bundle of readings (:data:`PRESETS`):
   real system cannot replay one noise draw for every rollout of an iteration, as
   ``conservative`` does. ``nu_t_center = nominal``: a trajectory with actions to perturb is one
   the helicopter can fly, and the paper's expert is "obtained by linearizing the true model
-  about the desired trajectory", which needs states and controls that belong together. Each of
-  these two was chosen on the text and short runs before the protocol-scale run.
+  about the desired trajectory", which needs states and controls that belong together.
+  ``nu_t_center`` was chosen on the text and 6-seed runs before its protocol-scale run;
+  ``pg_update`` on the text and on the sample-count check (500 samples an iteration against
+  100).
 - ``literal``: the most literal reading of the paper's text (``fifo``, ``spec``,
   ``transitions``, ``conservative``, ``target``), kept one flag away: ``--readings literal``.
 

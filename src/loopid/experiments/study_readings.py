@@ -24,10 +24,10 @@ Why a method is untouched by a field (the cells a reading inherits):
   takes the hover panels from ``nu-t-target``.
 
 The ``literal`` reading takes each cell from the one-factor reading that changes it (``fifo``,
-``spec``, ``nu-t-target``), which is exact because those parts touch disjoint cells, except the
-cells that two of its fields reach, which it runs itself: the policy gradient (``pg_samples``
-and ``pg_update``) on every panel, and D_t and B_t (``nu_t_center`` with ``delay_mode`` or
-``funnel_nominal``).
+``spec``), which is exact because those parts touch disjoint cells, except the cells that two of
+its fields reach, which it runs itself on every panel: the policy gradient (``pg_samples`` and
+``pg_update``), and D_t and B_t (``nu_t_center`` with ``delay_mode`` or ``funnel_nominal``; on
+hover only ``nu_t_center`` reaches them, and those two cells repeat ``nu-t-target``'s).
 """
 
 from typing import NamedTuple
@@ -73,7 +73,7 @@ READINGS: tuple[Reading, ...] = (
         "literal", "literal", "delay_mode = fifo, funnel_nominal = spec, "
         "pg_samples = transitions, pg_update = conservative, nu_t_center = target",
         dict(PRESETS["literal"]), ALL_PANELS, ("pg", *NU_T_METHODS),
-        parts=("fifo", "spec", "nu-t-target"),
+        parts=("fifo", "spec"),
     ),
     Reading(
         "fifo", "delay", "delay_mode = fifo", FIFO, ("hover-delay",), LEARNING_METHODS,

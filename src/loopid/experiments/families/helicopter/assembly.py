@@ -154,7 +154,10 @@ def nu_t_centre(reading: str, plant: Plant, K_expert: jax.Array) -> Centre | Non
         target = jnp.asarray(plant.task.target, jnp.float64)
         return Centre(target.at[:, helicopter.U_PREV].set(helicopter.hover_trim().u))
     if reading == "nominal":
-        return planned_flight(plant, K_expert)
+        try:
+            return planned_flight(plant, K_expert)
+        except ValueError as e:
+            raise ValueError(f"nu_t_center = nominal: {e} (--set nu_t_center=target)") from None
     raise ValueError(f"unknown nu_t_center {reading!r}")
 
 
