@@ -60,3 +60,38 @@ def test_core_tests_import_nothing_above_the_core():
     }
     offenders = {k: v for k, v in offenders.items() if v}
     assert not offenders, offenders
+
+
+SRC = TESTS.parent / "src" / "loopid"
+
+
+def module_getattrs_and_deprecations(root: Path) -> list[str]:
+    """``FILE:LINE`` of every module-level ``__getattr__`` (a function or an assignment) and
+    every ``DeprecationWarning`` named in the Python files below ``root``."""
+    found = []
+    for path in sorted(root.rglob("*.py")):
+        tree = ast.parse(path.read_text(encoding="utf-8"))
+        for node in tree.body:
+            named = (isinstance(node, ast.FunctionDef) and node.name == "__getattr__") or (
+                isinstance(node, ast.Assign)
+                and any(isinstance(t, ast.Name) and t.id == "__getattr__" for t in node.targets)
+            )
+            if named:
+                found.append(f"{path.relative_to(root)}:{node.lineno}")
+        for node in ast.walk(tree):
+            if isinstance(node, ast.Name) and node.id == "DeprecationWarning":
+                found.append(f"{path.relative_to(root)}:{node.lineno}")
+    return found
+
+
+def test_an_unreleased_package_keeps_no_old_names():
+    """loopid has never been released: no name is kept for compatibility, so no module answers
+    unknown names (``__getattr__``) and nothing warns ``DeprecationWarning``."""
+    assert module_getattrs_and_deprecations(SRC) == []
+
+
+def test_the_old_names_check_sees_both_forms(tmp_path):
+    (tmp_path / "a.py").write_text("def __getattr__(name):\n    raise AttributeError(name)\n")
+    (tmp_path / "b.py").write_text("__getattr__ = len\n")
+    (tmp_path / "c.py").write_text("import warnings\nwarnings.warn('x', DeprecationWarning)\n")
+    assert module_getattrs_and_deprecations(tmp_path) == ["a.py:1", "b.py:1", "c.py:2"]

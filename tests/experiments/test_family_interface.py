@@ -52,11 +52,14 @@ def test_function_family_refuses_an_unknown_part():
         FunctionFamily(**parts(plot=lambda: None))
 
 
-def test_the_record_form_warns_and_gives_a_function_family():
-    with pytest.warns(DeprecationWarning, match="FunctionFamily"):
-        family = Family(**parts(memory=lambda config, method, seeds: 7))
-    assert isinstance(family, FunctionFamily) and isinstance(family, BaseFamily)
-    assert family.memory(None, "a", 3) == 7 and family.report(None, None) == ["# toy"]
+def test_a_family_is_a_subclass_or_a_function_family_not_a_record():
+    """``Family`` is the base class (abstract): parts as keywords make a
+    :class:`FunctionFamily`, not a ``Family``."""
+    with pytest.raises(TypeError, match="no arguments"):
+        Family(**parts())
+    with pytest.raises(TypeError, match="abstract"):
+        Family()
+    assert isinstance(FunctionFamily(**parts()), BaseFamily)
 
 
 def test_the_shipped_families_are_subclasses_with_their_capabilities():
@@ -71,14 +74,3 @@ def test_the_shipped_families_are_subclasses_with_their_capabilities():
     assert offered["mdp"] == {"load", "evaluate", "trajectories", "memory"}
     assert offered["gym"] == {"load", "evaluate", "trajectories", "animate"}
     assert all(type(f) is not FunctionFamily for f in FAMILIES.values())
-
-
-def test_the_record_form_builds_its_family_once(monkeypatch):
-    calls = []
-    init = FunctionFamily.__init__
-    monkeypatch.setattr(
-        FunctionFamily, "__init__", lambda self, **kw: calls.append(1) or init(self, **kw)
-    )
-    with pytest.warns(DeprecationWarning):
-        Family(**parts())
-    assert calls == [1]

@@ -1,8 +1,7 @@
 """The loop and its agents: Algorithm 1 for every seed at once, the plant it runs on, the agents
 it trains and the baselines it is compared with.
 
-Public means listed here and documented: every submodule below is part of the API
-(``host_loop``, the old name of ``gym_loop``, warns and goes in the next release).
+Public means listed here and documented: every submodule below is part of the API.
 """
 
 __all__ = [

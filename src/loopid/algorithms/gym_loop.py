@@ -1,5 +1,5 @@
 """Algorithm 1 stepped from the host: the loop for a Gymnasium env (a system that is not a JAX
-function, :mod:`loopid.systems.from_gymnasium`), formerly ``loopid.algorithms.host_loop``.
+function, :mod:`loopid.systems.from_gymnasium`).
 
 Same semantics as :func:`loopid.algorithms.loop.run_learning`: iteration 1 solves the initial
 model; iteration n = 2..N collects, for every seed, ``ceil(m / horizon)`` training slots of the
@@ -42,7 +42,6 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from loopid._renamed import renamed, renamed_argument
 from loopid.algorithms.keys import HOST_EVALUATE, HOST_NU, HOST_POLICY, HOST_SELECT, HOST_TEST
 from loopid.algorithms.loop import (
     Agent,
@@ -235,7 +234,6 @@ def run_learning_host(
     progress: Callable[[int, Row], None] | None = None,
     program: HostLoopProgram | None = None,
     controller: Callable[[Any, Any], Any] | None = None,
-    cell: HostLoopProgram | None = None,
     test_policy: str = "last",
 ) -> Trace:
     """Run one learning method on a host system for ``len(fractions)`` iterations, every seed.
@@ -243,7 +241,7 @@ def run_learning_host(
     ``fractions[n−1]`` = ``p_n`` (``fractions[0]`` unused); ``cost(obs, action) -> float`` is the
     test cost (:class:`~loopid.systems.from_gymnasium.ObservationCost` or any callable);
     ``progress(n, row)`` after each iteration; ``program`` from :func:`make_host_program` to reuse
-    its compilation (``cell``: its earlier name).
+    its compilation.
     ``controller(learner_states, K) -> policy``: what flies the policy's training and test
     episodes, given every seed's learner state (leading seed axis) and gains (a model-predictive
     controller re-plans on the seed's model); default the gains ``K`` themselves.
@@ -268,7 +266,6 @@ def run_learning_host(
     keys = seed_keys(seeds)
     seeds = np.asarray(seeds)
     S = len(seeds)
-    program = renamed_argument("run_learning_host", "cell", "program", cell, program)
     if program is None:
         program = make_host_program(agent, samples=samples, with_nu=nu is not None)
     runs = -(-samples // system.horizon)
@@ -344,13 +341,3 @@ def _row(mean, median, div, loss_nu, loss_pol, online, pol_n, valid_n, info) -> 
         spectral_radius=np.asarray(info.spectral_radius, np.float64),
     )
     return Row(**fields, extra={})
-
-
-#: Names of earlier releases (warn, and go in the next one).
-__getattr__ = renamed(
-    __name__,
-    {
-        "HostCell": (__name__, "HostLoopProgram"),
-        "make_host_cell": (__name__, "make_host_program"),
-    },
-)

@@ -16,7 +16,7 @@ SELECT   3     ``test_policy = "best"``: the independent noise on which the best
 EVALUATE 4     ``loopid evaluate``: fresh test noise the run never saw
 ======== ===== ==================================================================================
 
-Systems that are not JAX functions (a Gymnasium env, :mod:`loopid.algorithms.host_loop`) seed
+Systems that are not JAX functions (a Gymnasium env, :mod:`loopid.algorithms.gym_loop`) seed
 their episodes from NumPy's ``SeedSequence([seed, n, stream])`` instead, with the streams
 :data:`HOST_POLICY`, :data:`HOST_NU`, :data:`HOST_TEST` (n = 0: the same episodes at every
 iteration), :data:`HOST_EVALUATE` and :data:`HOST_SELECT` (n = 0: the episodes on which

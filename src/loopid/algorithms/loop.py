@@ -22,7 +22,6 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from loopid._renamed import renamed, renamed_argument
 from loopid.algorithms.contracts import (
     Agent,
     Diagnostics,
@@ -134,7 +133,6 @@ def run_learning(
     program: LoopProgram | None = None,
     which: int = 0,
     noise: EvalNoise | None = None,
-    cell: LoopProgram | None = None,
 ) -> Trace:
     """Run one learning method for ``len(fractions)`` iterations on every seed
     (:func:`run_lanes` with one method).
@@ -143,11 +141,10 @@ def run_learning(
     the policy (``fractions[0]`` is unused: iteration 1 collects nothing). ``progress(n, row)`` is
     called after each iteration with that iteration's :class:`Row` (leaves ``[S]``).
     ``program``: a :class:`LoopProgram` from :func:`make_loop_program` with the same arguments,
-    to reuse its compilation across methods (DAgger, Batch, Abbeel) and calls (``cell``: its
-    earlier name); ``which`` picks the ν of a list. ``noise``: the seeds' :class:`EvalNoise`
-    (default: the program's ``noise(keys)``).
+    to reuse its compilation across methods (DAgger, Batch, Abbeel) and calls; ``which`` picks
+    the ν of a list. ``noise``: the seeds' :class:`EvalNoise` (default: the program's
+    ``noise(keys)``).
     """
-    program = renamed_argument("run_learning", "cell", "program", cell, program)
     return run_lanes(
         plant, agent, nu, [fractions], seeds, samples=samples, n_test=n_test, mode=mode,
         gamma=gamma, test_policy=test_policy, progress=progress, program=program,
@@ -171,13 +168,12 @@ def run_lanes(
     program: LoopProgram | None = None,
     which: Sequence[int] = (0,),
     noise: EvalNoise | None = None,
-    cell: LoopProgram | None = None,
     block: int = 1,
 ) -> list[Trace]:
     """Run M learning methods on every seed as one *lane set*: the lanes are the (method, seed)
     pairs, ``M·S`` of them, method-major, and every iteration of all of them is one call of the
     program's ``step`` (with ``block``, a block of iterations one call of its ``steps``;
-    ``program``, ``cell``: as in :func:`run_learning`). Returns one :class:`Trace` per method.
+    ``program``: as in :func:`run_learning`). Returns one :class:`Trace` per method.
 
     A method is data: its row of ``schedules [M, N]`` (the policy fractions ``p_n``, as
     ``fractions`` of :func:`run_learning`) and its ν index ``which[m]``. Every draw depends on
@@ -205,7 +201,6 @@ def run_lanes(
         raise ValueError(f"policy fractions must lie in [0, 1], got {schedules.tolist()}")
     which = jnp.asarray(np.asarray(which, dtype=np.int32).reshape(methods))
     keys = seed_keys(seeds)
-    program = renamed_argument("run_lanes", "cell", "program", cell, program)
     if program is None:
         program = make_loop_program(
             plant, agent, nu, samples=samples, iterations=iterations, n_test=n_test, mode=mode,
@@ -360,19 +355,6 @@ def _trace(seeds, samples: int, rows: list[Row], final: dict | None = None) -> T
     iteration = np.arange(1, n + 1)
     final = None if final is None else {k: np.asarray(v) for k, v in final.items()}
     return Trace(np.asarray(seeds), iteration, (iteration - 1) * samples, stacked, final)
-
-
-#: Names of earlier releases (warn, and go in the next one).
-__getattr__ = renamed(
-    __name__,
-    {
-        "Cell": ("loopid.algorithms.contracts", "LoopProgram"),
-        "make_cell": (__name__, "make_loop_program"),
-        "cell_memory": (__name__, "program_memory"),
-        "batch_losses": ("loopid.algorithms.loop_program", "batch_losses"),
-        "LearnStats": ("loopid.algorithms.loop_program", "LearnStats"),
-    },
-)
 
 __all__ = [  # the contracts and key streams, importable from here as before
     "EVALUATE", "TEST_POLICIES", "Agent", "Diagnostics", "EvalNoise", "IterationKeys",

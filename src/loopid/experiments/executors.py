@@ -27,7 +27,6 @@ from collections.abc import Callable, Hashable, Iterator, Sequence
 from contextlib import contextmanager, nullcontext
 from typing import Any, NamedTuple
 
-from loopid._renamed import renamed
 from loopid.experiments.backend import compile_cache
 from loopid.experiments.pool import run_pool
 
@@ -221,13 +220,3 @@ def executor(name: str) -> Callable[..., Iterator[tuple[Job, Any]]]:
     """The executor called ``name`` (:data:`EXECUTORS`)."""
     check_executor(name)
     return {"local": run_local, "ray": run_ray}[name]
-
-
-#: Names of earlier releases (warn, and go in the next one).
-__getattr__ = renamed(
-    __name__,
-    {
-        "spread": ("loopid.experiments.pool", "spread"),
-        "core_shares": ("loopid.experiments.pool", "core_shares"),
-    },
-)

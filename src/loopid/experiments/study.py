@@ -153,30 +153,3 @@ def run_study(
     )
     return readings
 
-
-#: Names renamed when the study was split (the others moved as they were).
-_RENAMED = {
-    "SPEC_PREDICTION": "INDEPENDENT_PREDICTION",
-    "SPEC_TRUE_STEP": "INDEPENDENT_TRUE_STEP",
-    "_relabel": "relabel",
-}
-
-
-def __getattr__(name: str):
-    """The names this module had before it was split, for one release (``DeprecationWarning``
-    naming their new module)."""
-    import warnings
-
-    from loopid.experiments import study_readings, study_report
-
-    new = _RENAMED.get(name, name)
-    for module in (study_readings, study_report):
-        if not new.startswith("__") and hasattr(module, new):
-            warnings.warn(
-                f"loopid.experiments.study.{name} is now {module.__name__}.{new}; the old name "
-                "goes in the next release",
-                DeprecationWarning,
-                stacklevel=2,
-            )
-            return getattr(module, new)
-    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

@@ -66,11 +66,3 @@ __all__ = [
     "trap_mdp",
 ]
 
-
-def __getattr__(name: str):
-    """The old names of :class:`ObservationCost` and :func:`observation_cost`, for one release."""
-    from loopid.systems import from_gymnasium
-
-    if name in from_gymnasium._RENAMED:
-        return getattr(from_gymnasium, name)
-    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

@@ -485,21 +485,3 @@ class GymSystem:
             a_[zero] = 0.0
         return Rollouts(x, dx, du, dx_next, t_buf, mask, reward, steps, terminated, finite)
 
-
-#: Names this module had before, kept for one release (``DeprecationWarning``).
-_RENAMED = {"QuadraticCost": "ObservationCost", "quadratic_cost": "observation_cost"}
-
-
-def __getattr__(name: str):
-    if name in _RENAMED:
-        import warnings
-
-        new = _RENAMED[name]
-        warnings.warn(
-            f"loopid.systems.from_gymnasium.{name} is now {new} (loopid.control.{name} is the "
-            "planner's cost); the old name goes in the next release",
-            DeprecationWarning,
-            stacklevel=2,
-        )
-        return globals()[new]
-    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

@@ -14,7 +14,6 @@ TOML values; ``None`` left out). The helpers they share (checks, reading a ``--c
 ``--set key=value``) are in :mod:`loopid.experiments.config`.
 """
 
-import warnings
 from abc import ABC, abstractmethod
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import fields
@@ -78,17 +77,6 @@ class Family(ABC):
     animate: Callable[..., Any] | None = None
     memory: Callable[[Any, Any, int], int] | None = None
     run_lanes: Callable[..., dict[str, Trace]] | None = None
-
-    def __new__(cls, *args, **parts):
-        if cls is Family:  # the record form of earlier releases: Family(name=..., run=..., ...)
-            warnings.warn(
-                "Family(name=..., run=..., ...) is now FunctionFamily(...), or a subclass of "
-                "Family; the record form goes in the next release",
-                DeprecationWarning,
-                stacklevel=2,
-            )
-            cls = FunctionFamily  # Python then calls its __init__ with these keywords, once
-        return super().__new__(cls)
 
     @abstractmethod
     def build(self, name: str, fields: dict) -> Any:

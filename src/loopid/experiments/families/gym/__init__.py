@@ -66,25 +66,6 @@ class GymFamily(Family):
 
 FAMILY = GymFamily()
 
-#: Names this module had before it became a package, kept for one release.
-_RENAMED = {"Learner": "CompiledAgent", "Shape": "EnvShape"}
-
-
-def __getattr__(name: str):
-    if name in _RENAMED:
-        import warnings
-
-        new = _RENAMED[name]
-        warnings.warn(
-            f"loopid.experiments.families.gym.{name} is now {new}; the old name goes in the "
-            "next release",
-            DeprecationWarning,
-            stacklevel=2,
-        )
-        return globals()[new]
-    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
-
-
 __all__ = [
     "FAMILY",
     "FIELDS",

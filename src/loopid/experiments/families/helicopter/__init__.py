@@ -19,7 +19,6 @@ report: the final costs with each panel's readings of the details the paper leav
 animated (:mod:`loopid.experiments.families.helicopter.saved`).
 """
 
-from loopid._renamed import renamed
 from loopid.algorithms import methods as M
 from loopid.experiments import model_planner
 from loopid.experiments.config import read_flat_file
@@ -48,17 +47,6 @@ from loopid.experiments.families.helicopter.saved import (
     trajectories,
 )
 from loopid.experiments.scenarios import FIELDS, SCENARIOS, Scenario, scenario
-
-#: Names of earlier releases (warn, and go in the next one): the plant and initial model live
-#: in the core now (:mod:`loopid.algorithms.helicopter_plant`).
-__getattr__ = renamed(
-    __name__,
-    {
-        "helicopter_plant": ("loopid.algorithms.helicopter_plant", "helicopter_plant"),
-        "nominal_model": ("loopid.algorithms.helicopter_plant", "helicopter_nominal_model"),
-        "cell": (__name__, "loop_program"),
-    },
-)
 
 
 class HelicopterFamily(Family):
