@@ -6,7 +6,8 @@ the best such gain bounds what any learned model's LQR can reach. Measured here,
 panel and delay reading: ``hover`` (d = 0, where the two readings coincide: run once) and
 ``hover-delay`` (d = 1) under ``delay_mode = "latency"`` and under ``"fifo"``.
 
-1. Search. From L's gain (:func:`loopid.algorithms.expert.expert_gains`, time-invariant on hover:
+1. Search. From L's gain (:func:`loopid.experiments.families.helicopter.expert.expert_gains`,
+time-invariant on hover:
    ``K_expert[0]``), minimise the mean test cost of the static gain (broadcast over the 400
    steps) over its 84 entries: the plant's own test rollouts (:meth:`Plant.eval_costs`: 400
    steps from the task's start state, noise std 1, costs capped at 1e8), differentiated by JAX
@@ -88,8 +89,8 @@ from linear_gain_flights import (  # benchmarks/linear_gain_flights.py
     static,
 )
 from linear_gain_report import gain_report  # benchmarks/linear_gain_report.py
-from loopid.algorithms.expert import expert_gains
-from loopid.algorithms.helicopter_plant import helicopter_plant
+from loopid.experiments.families.helicopter.expert import expert_gains
+from loopid.experiments.families.helicopter.plant import helicopter_plant
 from loopid.systems.tasks import make_task
 
 TRAIN_KEY, TEST_KEY = 101, 202

@@ -21,8 +21,8 @@ flight, its states and actions). For each centre it measures:
    method ``dagger-t``) for a few iterations and requires its rows and policies to be bit for
    bit those of the lane set.
 2. A ν_t-only fit at one circle step τ (``--tau``): ``--fit-samples`` draws of ν_t at that step
-   (the sampler of :func:`loopid.exploration.nu_trajectory` with its target time fixed; checked
-   row for row, to 1e-12, against the real sampler's draws that land on τ), then plain least
+   (the sampler of :func:`loopid.algorithms.exploration.nu_trajectory` with its target time fixed;
+   checked row for row, to 1e-12, against the real sampler's draws that land on τ), then plain least
    squares of Δx_{τ+1} on [Δx_τ; Δu_τ] in the learner's error coordinates (relative to the
    target). The block that reads velocity (rows 8:11, ``ned_dot``) from the attitude error
    (columns 17:20) is set beside the same block of: the true simulator's Jacobian at the
@@ -75,7 +75,7 @@ from funnel_nu_t_learning import (  # benchmarks/funnel_nu_t_learning.py
     scenario,
 )
 from loopid.experiments.families.helicopter import assembly
-from loopid.experiments.readings import NU_T_CENTERS
+from loopid.experiments.families.helicopter.readings import NU_T_CENTERS
 from loopid.models.linear_offset import to_matrices
 
 SIZES = {"default": (2, 12, 1000), "full": (4, 40, 4000)}  # seeds, iterations, fit draws

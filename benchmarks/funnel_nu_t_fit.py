@@ -16,8 +16,8 @@ import jax.numpy as jnp
 import numpy as np
 
 import loopid  # noqa: F401  (float64)
+from loopid.algorithms.exploration import Centre, nu_trajectory
 from loopid.experiments.families.helicopter import assembly
-from loopid.exploration import Centre, nu_trajectory
 from loopid.models.linear_offset import to_matrices
 from loopid.systems import helicopter as H
 
@@ -33,8 +33,8 @@ def centre_of(reading: str, plant, K_expert) -> Centre:
 
 # ----------------------------------------------------------------------------- 2. the fit
 def sampler_at(plant, centre: Centre, tau: int, state_var: float, action_var: float):
-    """:func:`loopid.exploration.nu_trajectory`'s sampler with its target time fixed at ``tau``
-    (the same keys and draws otherwise, so each row equals the real sampler's row wherever
+    """:func:`loopid.algorithms.exploration.nu_trajectory`'s sampler with its target time fixed at
+    ``tau`` (the same keys and draws otherwise, so each row equals the real sampler's row wherever
     that one drew ``tau``)."""
     states = jnp.asarray(centre.states, jnp.float64)
     actions = None if centre.actions is None else jnp.asarray(centre.actions, jnp.float64)

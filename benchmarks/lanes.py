@@ -28,13 +28,13 @@ import jax
 import numpy as np
 
 import loopid
-from loopid.algorithms import methods as M
+from loopid.algorithms.exploration import NU_KINDS
 from loopid.algorithms.loop import iteration_block, run_lanes, run_learning, seed_keys
 from loopid.experiments.backend import ACCELERATOR_BLOCK
 from loopid.experiments.families import helicopter as H
 from loopid.experiments.families.helicopter import assembly
-from loopid.experiments.scenarios import scenario
-from loopid.exploration import NU_KINDS
+from loopid.experiments.families.helicopter import methods as M
+from loopid.experiments.families.helicopter.scenario import scenario
 
 #: Iterations per panel: enough for the learning steps to dominate iteration 1's solve.
 ITERATIONS = {"hover": 8, "hover-delay": 8, "funnel": 5}

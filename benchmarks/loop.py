@@ -22,13 +22,13 @@ import numpy as np
 import scipy.linalg
 
 import loopid  # noqa: F401  (float64)
-from loopid.algorithms import methods as M
-from loopid.algorithms.expert import expert_gains
-from loopid.algorithms.helicopter_plant import helicopter_nominal_model, helicopter_plant
+from loopid.algorithms.exploration import make_nu
 from loopid.algorithms.loop import make_loop_program, run_learning
 from loopid.algorithms.model_based import linear_agent
-from loopid.experiments.scenarios import scenario
-from loopid.exploration import make_nu
+from loopid.experiments.families.helicopter import methods as M
+from loopid.experiments.families.helicopter.expert import expert_gains
+from loopid.experiments.families.helicopter.plant import helicopter_nominal_model, helicopter_plant
+from loopid.experiments.families.helicopter.scenario import scenario
 from loopid.learners import ftrl_least_squares
 from loopid.systems import helicopter as h
 from loopid.systems.tasks import make_task

@@ -16,10 +16,10 @@
       planned through ``feature_model.dynamics`` with W traced (``plan(params=W)``).
     - The nose-in funnel (``make_task("funnel")``, Δx [21] error coordinates along the target,
       Δu [4], T = 599 steps, 600 target states), cost ΔxᵀQΔx + ΔuᵀRΔu, the expert's initial
-      actions (:func:`loopid.algorithms.expert.funnel_initial_actions`). True model: the
-      noise-free helicopter step in error coordinates, Δx' = to_error(step(from_error(Δx, x*_t),
-      Δu, 0), x*_{t+1}), the target traced as ``params``. Learned: one global feature model for
-      all steps, Δx' = A_tΔx + B_tΔu + Wᵀφ(Δx, Δu) on the ``"heading"`` funnel nominal
+      actions (:func:`loopid.experiments.families.helicopter.expert.funnel_initial_actions`). True
+      model: the noise-free helicopter step in error coordinates, Δx' = to_error(step(from_error(Δx,
+      x*_t), Δu, 0), x*_{t+1}), the target traced as ``params``. Learned: one global feature model
+      for all steps, Δx' = A_tΔx + B_tΔu + Wᵀφ(Δx, Δu) on the ``"heading"`` funnel nominal
       (:func:`loopid.systems.funnel_nominal.funnel_nominal`), φ polynomial degree 2 (F = 325) or
       400 random Fourier features (F = 425), W fitted by FTRL on one-step queries of the true
       model about the true-model row's plan (32 per step, states and actions ± N(0, 0.05²));
@@ -27,7 +27,7 @@
       not finite, which leaves the time per iteration unchanged, see there). A
       third row is the expert's own formulation (:func:`loopid.control.ilqr` on the raw 21-state
       step with the cost in error coordinates, as
-      :func:`loopid.algorithms.expert.funnel_expert_gains` runs it).
+      :func:`loopid.experiments.families.helicopter.expert.funnel_expert_gains` runs it).
 
 (b) MPC step rate: :class:`loopid.control.MPCController` (horizon 60, 10 iLQR iterations, the
     warm start plus the alternatives ±2, re-planning every 1 or 4 steps) driving 8
@@ -60,7 +60,7 @@ import numpy as np
 
 import loopid  # noqa: F401  (float64, registers loopid/PendulumHanging-v0)
 from loopid import control
-from loopid.algorithms.expert import funnel_initial_actions
+from loopid.experiments.families.helicopter.expert import funnel_initial_actions
 from loopid.learners import ftrl_least_squares
 from loopid.models import feature_model as F
 from loopid.models.linear_offset import LinearOffsetModel
@@ -252,10 +252,10 @@ def print_plans(title, rows, iterations):
 def mpc_plant_rows(repeats, quick):
     """[(label, seconds, compile seconds, mean test cost)] of the hover's MPC test flights
     (module docstring, (c)); the first row flies the expert's gains."""
-    from loopid.algorithms.expert import expert_gains
     from loopid.algorithms.loop import eval_noise, seed_keys
     from loopid.algorithms.mpc_plant import mpc_plant
     from loopid.algorithms.plant import flatten, make_plant
+    from loopid.experiments.families.helicopter.expert import expert_gains
     from loopid.models.linear_offset import hover_nominal
 
     task = make_task("hover")

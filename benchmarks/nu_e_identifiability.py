@@ -11,10 +11,10 @@ not be collinear; at delay 0 (and under ``fifo``, whose ν query holds the comma
 
 Measured here, per panel and reading (``hover`` d = 0; ``hover-delay`` under ``latency``;
 ``hover-delay`` under ``fifo`` with ``nu_pending = "hold"``): ν_e's rows drawn exactly as the
-loop draws them (``loopid.exploration.make_nus(plant, K_expert)[1]``, the expert's gains from
-:func:`loopid.algorithms.expert.expert_gains`), 100 rows per iteration (the hover protocol),
-iteration i drawn with ``jax.random.fold_in(PRNGKey(seed), i)``, i = 1..100. For one iteration
-(i = 1), the pooled rows of iterations 1-50 and of iterations 1-100:
+loop draws them (``loopid.algorithms.exploration.make_nus(plant, K_expert)[1]``, the expert's gains
+from :func:`loopid.experiments.families.helicopter.expert.expert_gains`), 100 rows per iteration
+(the hover protocol), iteration i drawn with ``jax.random.fold_in(PRNGKey(seed), i)``, i = 1..100.
+For one iteration (i = 1), the pooled rows of iterations 1-50 and of iterations 1-100:
 
 - the singular values of Z [rows, 25] (with the constant column) and of Z without it
   [rows, 24]: largest, smallest, smallest / largest, and the numerical rank at relative
@@ -51,10 +51,10 @@ import jax.numpy as jnp
 import numpy as np
 
 import loopid  # noqa: F401  (float64)
-from loopid.algorithms.expert import expert_gains
-from loopid.algorithms.helicopter_plant import helicopter_plant
+from loopid.algorithms.exploration import make_nus
 from loopid.algorithms.model_based import linear_agent
-from loopid.exploration import make_nus
+from loopid.experiments.families.helicopter.expert import expert_gains
+from loopid.experiments.families.helicopter.plant import helicopter_plant
 from loopid.learners import ftrl_least_squares
 from loopid.models.linear_offset import hover_nominal, to_matrices
 from loopid.systems import helicopter

@@ -27,7 +27,7 @@ ONE_SIZE = textwrap.dedent(
     from loopid.experiments.execute import run_cells
     from loopid.experiments.executors import compile_cache
     from loopid.experiments.rundir import RunDir
-    from loopid.experiments.scenarios import scenario
+    from loopid.experiments.families.helicopter.scenario import scenario
     from loopid.experiments.chunks import budget
 
     compile_cache()

@@ -181,9 +181,9 @@ def main():
 
 
 def bench_test_evaluation():
-    from loopid.algorithms.expert import expert_gains
-    from loopid.algorithms.helicopter_plant import helicopter_plant
     from loopid.algorithms.loop import eval_noise, seed_keys
+    from loopid.experiments.families.helicopter.expert import expert_gains
+    from loopid.experiments.families.helicopter.plant import helicopter_plant
     from loopid.systems.tasks import make_task
 
     seeds, n_test = 20, 100

@@ -24,7 +24,7 @@ import numpy as np
 from loopid.algorithms.policy_gradient import budget, fd_gradient
 from loopid.experiments.families.helicopter import agent as agent_of
 from loopid.experiments.families.helicopter import setup
-from loopid.experiments.scenarios import scenario
+from loopid.experiments.families.helicopter.scenario import scenario
 
 N = 200  # noise draws for the exact expectations
 TRIALS = 20  # finite-difference estimates drawn

@@ -24,7 +24,7 @@ from loopid.algorithms.loop import iteration_key, seed_keys
 from loopid.algorithms.policy_gradient import budget, init_state, make_pg_step, pg_base
 from loopid.experiments.families.helicopter import agent as agent_of
 from loopid.experiments.families.helicopter import setup
-from loopid.experiments.scenarios import scenario
+from loopid.experiments.families.helicopter.scenario import scenario
 
 SEEDS = 4
 ITERATIONS = 30

@@ -84,6 +84,6 @@ def funnel_setup():
     session: the expert's iLQR on the 599-step funnel is one of the suite's longest computations,
     and the runner's own cache (a few entries) is evicted between the modules that use it."""
     from loopid.experiments.families.helicopter import setup
-    from loopid.experiments.scenarios import scenario
+    from loopid.experiments.families.helicopter.scenario import scenario
 
     return setup(scenario("funnel"))

@@ -13,10 +13,10 @@ import pytest
 
 import loopid
 from conftest import cell_mtimes, cli
-from loopid.algorithms.methods import METHODS
 from loopid.cli import main
+from loopid.experiments.families.helicopter.methods import METHODS
+from loopid.experiments.families.helicopter.scenario import SCENARIOS
 from loopid.experiments.results import SCHEMA
-from loopid.experiments.scenarios import SCENARIOS
 from pinned import assert_matches_pin, keys
 
 PINNED = Path(__file__).parent / "fixtures" / "reproduce_quick_literal.parquet"
@@ -184,7 +184,7 @@ def test_reproduce_quick_writes_the_four_files(quick):
 @pytest.mark.slow
 def test_study_quick_writes_every_file_and_covers_every_reading(tmp_path, cache, quick):
     """``loopid study --quick``, sharing the default reading's cells with a reproduce run."""
-    from loopid.experiments.study import FIGURES, READING_FIELDS, READINGS
+    from loopid.experiments.families.helicopter.study import FIGURES, READING_FIELDS, READINGS
 
     before = cell_mtimes(quick)
     out = tmp_path / "study"

@@ -9,7 +9,7 @@ from pathlib import Path
 
 TESTS = Path(__file__).resolve().parent
 CORE_DIRS = ("algorithms", "control", "learners", "models", "systems")
-CORE_FILES = ("test_theory.py",)
+CORE_FILES: tuple[str, ...] = ()
 ABOVE_THE_CORE = ("loopid.experiments", "loopid.cli")
 
 
@@ -95,3 +95,61 @@ def test_the_old_names_check_sees_both_forms(tmp_path):
     (tmp_path / "b.py").write_text("__getattr__ = len\n")
     (tmp_path / "c.py").write_text("import warnings\nwarnings.warn('x', DeprecationWarning)\n")
     assert module_getattrs_and_deprecations(tmp_path) == ["a.py:1", "b.py:1", "c.py:2"]
+
+
+# The package's layers: the engine knows no experiment, the pipeline knows no family.
+ENGINE = ("systems", "models", "learners", "control", "algorithms", "rounds", "settings")
+REGISTRY = ("loopid.experiments.families", "loopid.experiments.families.base")
+
+
+def family_modules(names: set[str]) -> set[str]:
+    """The names in ``names`` inside one family's package (``loopid.experiments.families.X``
+    and below, for a package or module X of ``families/`` other than the registry's ``base``)."""
+    prefix = "loopid.experiments.families."
+    root = SRC / "experiments" / "families"
+    found = {p.stem for p in root.iterdir() if p.suffix == ".py" or (p / "__init__.py").is_file()}
+    packages = found - {"__init__", "base"}
+    return {n for n in names if n.startswith(prefix) and n[len(prefix) :].split(".")[0] in packages}
+
+
+def pipeline_files() -> list[Path]:
+    """The experiment pipeline's modules (``experiments/`` outside ``families/``) and the
+    command line, which may use the family registry but no family."""
+    exp = SRC / "experiments"
+    files = [p for p in sorted(exp.rglob("*.py")) if "families" not in p.relative_to(exp).parts]
+    return [*files, SRC / "cli.py"]
+
+
+def test_the_pipeline_and_the_command_line_name_no_family():
+    offenders = {
+        str(p.relative_to(SRC)): sorted(family_modules(imported_modules(p)))
+        for p in pipeline_files()
+    }
+    assert {k: v for k, v in offenders.items() if v} == {}
+
+
+def test_the_engine_imports_no_experiment():
+    files = [p for d in ENGINE for p in sorted((SRC / d).rglob("*.py"))]
+    assert len(files) > 40
+    offenders = {
+        str(p.relative_to(SRC)): sorted(above_the_core(imported_modules(p))) for p in files
+    }
+    assert {k: v for k, v in offenders.items() if v} == {}
+
+
+def test_the_layer_checks_see_a_family_import(tmp_path):
+    bad = tmp_path / "bad.py"
+    bad.write_text(
+        "from loopid.experiments.families import family_named\n"
+        "from loopid.experiments.families.base import Family\n"
+        "def f():\n    from loopid.experiments.families.helicopter import scenario\n"
+    )
+    assert family_modules(imported_modules(bad)) == {
+        "loopid.experiments.families.helicopter",
+        "loopid.experiments.families.helicopter.scenario",
+    }
+
+
+def test_no_module_is_over_400_lines():
+    sizes = {str(p.relative_to(SRC)): len(p.read_text().splitlines()) for p in SRC.rglob("*.py")}
+    assert {k: n for k, n in sizes.items() if n > 400} == {}

@@ -51,7 +51,7 @@ def test_a_systems_step_is_called_only_by_the_delayed_loop_and_the_one_step_quer
         "algorithms/plant.py",
         "algorithms/mpc_plant.py",
         "algorithms/policy_gradient.py",
-        "experiments/flights.py",
+        "experiments/families/helicopter/flights.py",
     ]:
         assert f in acting, f
 

@@ -26,6 +26,17 @@ from pathlib import Path
 import typer
 
 import loopid
+from loopid.experiments.commands import (
+    EXECUTOR,
+    MEMORY,
+    QUIET,
+    RAY_ADDRESS,
+    WORKERS,
+    execute_runs,
+    method_list,
+    workers_for,
+)
+from loopid.experiments.families import families
 from loopid.rounds.commands import round_app
 
 app = typer.Typer(
@@ -35,11 +46,7 @@ app = typer.Typer(
     pretty_exceptions_enable=False,
     rich_markup_mode=None,  # plain text: click wraps paragraphs, keeps blocks marked \b as they are
 )
-
 app.add_typer(round_app, name="round")
-
-#: --quick: every panel and method, 2 seeds, 4 iterations, 10 test trajectories.
-QUICK = {"iterations": 4, "test_trajectories": 10, "seeds": 2}
 
 
 def _version(value: bool) -> None:
@@ -55,138 +62,6 @@ def _root(
     ),
 ) -> None:
     """loopid: closed-loop system identification and model-based control."""
-
-
-class _Output:
-    """Progress and log lines for a run.
-
-    On a terminal: one rich progress bar per running cell (seeds × iterations done over all its
-    chunks, elapsed, ETA; cells running at once share one display) and a line per finished
-    cell. Not a terminal (CI logs): the lines only. ``--quiet``: nothing but errors.
-    """
-
-    def __init__(self, quiet: bool):
-        self.quiet = quiet
-        self.bars = None
-        self.console = None
-        if not quiet and sys.stderr.isatty():
-            from rich.console import Console
-
-            self.console = Console(stderr=True)
-
-    def log(self, line: str) -> None:
-        if self.quiet:
-            return
-        if self.console is not None:
-            self.console.print(line, markup=False, highlight=False)
-        else:
-            typer.echo(line, err=True)
-
-    def on_cell(self, scenario: str, method: str, total: int):
-        if self.console is None:
-            return None
-        if self.bars is None:
-            from rich.progress import (
-                BarColumn,
-                MofNCompleteColumn,
-                Progress,
-                TextColumn,
-                TimeElapsedColumn,
-                TimeRemainingColumn,
-            )
-
-            self.bars = Progress(
-                TextColumn("{task.description}"),
-                BarColumn(),
-                MofNCompleteColumn(),
-                TextColumn("seed-iterations"),
-                TimeElapsedColumn(),
-                TimeRemainingColumn(),
-                console=self.console,
-                transient=True,
-            )
-            self.bars.start()
-        bars = self.bars
-        task = bars.add_task(f"{scenario} / {method}", total=total)
-
-        def advance(done: int) -> None:
-            bars.update(task, completed=done)
-            if done >= total:
-                bars.remove_task(task)
-
-        return advance
-
-    def close(self) -> None:
-        if self.bars is not None:
-            self.bars.stop()
-            self.bars = None
-
-
-def _methods(text: str) -> list[str]:
-    """A comma-separated method list (checked against the scenario's family by run_cells)."""
-    names = [m.strip() for m in text.split(",") if m.strip()]
-    if not names:
-        raise ValueError("--methods is empty; give a comma-separated list")
-    return names
-
-
-def _workers(executor: str, workers: int | None) -> int:
-    """--workers: the local executor's workers (default: one process per CPU, at most 4; on
-    several GPUs one process per device; on one GPU 4 threads sharing it)."""
-    from loopid.experiments.executors import check_workers, default_workers
-
-    if workers is None:
-        return default_workers() if executor == "local" else 1
-    if executor != "local":
-        raise ValueError(f"--workers {workers} applies to --executor local, not {executor!r}")
-    return check_workers(workers)
-
-
-def _execute(runs, *, quiet, executor, ray_address, workers, memory, t0):
-    """Run the cells of each run, ``(out, scenarios, methods)``, into its out (the runs' cells
-    given to the same workers), then draw each one's figure.png and write its report.md."""
-    from loopid.experiments.execute import run_all, write_outputs
-
-    output = _Output(quiet)
-    try:
-        tables = run_all(
-            runs, executor_name=executor, ray_address=ray_address,
-            workers=workers, memory=memory, on_cell=output.on_cell, log=output.log,
-        )  # fmt: skip
-    finally:
-        output.close()
-    for (out, _, _), table in zip(runs, tables, strict=True):
-        write_outputs(out, table, time.perf_counter() - t0)
-        output.log(f"wrote {table.num_rows} rows, figure.png and report.md to {out}/")
-
-
-EXECUTOR = typer.Option("local", "--executor", help="local (this machine) or ray.")
-WORKERS = typer.Option(
-    None,
-    "--workers",
-    help="local: workers, one cell each at a time: processes (default: one per CPU, at most 4; "
-    "on several GPUs one per device) or, on one GPU, threads sharing it (default 4); 1 = in "
-    "this process, in order.",
-)
-RAY_ADDRESS = typer.Option(
-    None, "--ray-address", help="Join this Ray cluster (default: start a local one)."
-)
-QUIET = typer.Option(False, "--quiet", help="No progress output (errors only).")
-MEMORY = typer.Option(
-    None,
-    "--memory",
-    help="Memory budget in GB of the processes computing at once; a cell that does not fit runs "
-    "in seed chunks (default: 60% of the memory available, less 1.5 GB per process).",
-)
-SEEDS = typer.Option(None, "--seeds", help="Number of seeds (default 20; --quick 2).")
-
-
-def _protocol_changes(quick: bool, seeds: int | None) -> dict:
-    """The scenario fields --quick and --seeds change on the paper's panels."""
-    changes = dict(QUICK) if quick else {}
-    if seeds is not None:
-        changes["seeds"] = seeds
-    return changes
 
 
 def scenario_from_options(
@@ -208,7 +83,7 @@ def scenario_from_options(
     fields, methods = family.read_file(config) if config is not None else ({}, None)
     allowed = family.field_names()
     if readings is not None:
-        fields.update(_preset(readings, allowed, name))
+        fields.update(_preset(readings, family, name))
     for text in assignments:
         key, value = parse_assignment(text)
         if key not in allowed:
@@ -224,34 +99,38 @@ def scenario_from_options(
     return family, family.build(name, fields), methods
 
 
-def _preset(readings: str, allowed, name: str) -> dict:
-    """The reading fields of preset ``readings`` (:mod:`loopid.experiments.readings`); one line
-    for an unknown preset or a scenario without readings."""
-    from loopid.experiments.readings import READING_FIELDS, preset
-
-    fields = preset(readings)
-    if not set(READING_FIELDS) <= set(allowed):
-        raise ValueError(f"--readings applies to the helicopter scenarios, not {name!r}")
-    return fields
+def _preset(readings: str, family, name: str) -> dict:
+    """The fields of ``family``'s preset ``readings``
+    (:attr:`~loopid.experiments.families.base.Family.presets`); one line for an unknown preset
+    or a family without presets."""
+    if not family.presets:
+        with_presets = ", ".join(f.name for f in families().values() if f.presets)
+        raise ValueError(
+            f"--readings: {name} ({family.name} family) has no presets; the scenarios of "
+            f"{with_presets} have"
+        )
+    if readings not in family.presets:
+        raise ValueError(
+            f"--readings: unknown preset {readings!r}; presets: {', '.join(family.presets)}"
+        )
+    return dict(family.presets[readings])
 
 
 READINGS = typer.Option(
     None,
     "--readings",
-    help="Preset of the readings of the details the paper leaves open: probable (the default: "
-    "delay_mode=latency, funnel_nominal=heading, pg_samples=rollouts, pg_update=descent, "
-    "nu_t_center=nominal) or literal (fifo, spec, transitions, conservative, target). It "
-    "overrides --config; --set overrides it.",
+    help="A preset of the scenario's family: a named set of field values ("
+    + "; ".join(f"{f.name}: {', '.join(f.presets)}" for f in families().values() if f.presets)
+    + "). It overrides --config; --set overrides it.",
 )
 
 
 def _scenario_list() -> str:
     """The registered scenario names, by family (for the help text)."""
-    from loopid.experiments.families import FAMILIES
-
-    return (
-        "; ".join(f"{name}: {', '.join(f.scenarios or [f.name])}" for name, f in FAMILIES.items())
-        + " (gym with --config FILE)."
+    return "; ".join(
+        f"{name}: {', '.join(f.scenarios or [f.name])}"
+        + ("" if f.scenarios else f" ({f.name} with --config FILE)")
+        for name, f in families().items()
     )
 
 
@@ -301,97 +180,21 @@ def run(
     )
     options = {k: v for k, v in options.items() if v is not None}
     check_executor(executor, ray_address)
-    workers = _workers(executor, workers)
+    workers = workers_for(executor, workers)
     family, s, chosen = scenario_from_options(scenario, config, options, assignments, readings)
     if methods is not None:
-        chosen = _methods(methods)
+        chosen = method_list(methods)
     elif chosen is None:
         chosen = list(family.default_methods(s))
-    _execute(
+    execute_runs(
         [(out, [s], chosen)], quiet=quiet, executor=executor, ray_address=ray_address,
         workers=workers, memory=memory, t0=t0,
     )  # fmt: skip
 
 
-@app.command()
-def reproduce(
-    out: Path = typer.Option(Path("runs/reproduce"), "--out", help="Run directory."),
-    seeds: int = SEEDS,
-    quick: bool = typer.Option(
-        False, "--quick", help="Smoke run: every panel and method, 2 seeds, 4 iterations."
-    ),
-    readings: str = READINGS,
-    quiet: bool = QUIET,
-    executor: str = EXECUTOR,
-    ray_address: str = RAY_ADDRESS,
-    workers: int = WORKERS,
-    memory: float = MEMORY,
-) -> None:
-    """The paper's Figure 2 (hover, hover with delay 1, the nose-in funnel; every method) in
-    OUT, and the finite-MDP study in OUT/mdp. --readings literal: under the literal readings
-    of the paper's text instead of the probable ones."""
-    from loopid.algorithms.methods import METHODS
-    from loopid.experiments.executors import check_executor
-    from loopid.experiments.families import mdp
-    from loopid.experiments.readings import preset
-    from loopid.experiments.scenarios import SCENARIOS
-
-    t0 = time.perf_counter()
-    check_executor(executor, ray_address)
-    workers = _workers(executor, workers)
-    changes = _protocol_changes(quick, seeds)
-    if readings is not None:
-        changes.update(preset(readings))
-    scenarios = [s.replace(**changes) for s in SCENARIOS.values()]
-    # the extra figure: the finite-MDP study, where the paper's bounds are exact; its cells
-    # run on the same workers, after the helicopter's
-    mdp_changes = {k: v for k, v in changes.items() if k in ("iterations", "seeds")}
-    mdps = [mdp.MDP_SCENARIOS[n].replace(**mdp_changes) for n in ("mdp-random", "mdp-trap")]
-    _execute(
-        [(out, scenarios, list(METHODS)), (out / "mdp", mdps, list(mdp.MDP_METHODS))],
-        quiet=quiet, executor=executor, ray_address=ray_address, workers=workers,
-        memory=memory, t0=t0,
-    )  # fmt: skip
-
-
-@app.command()
-def study(
-    out: Path = typer.Option(Path("runs/study"), "--out", help="Study directory."),
-    seeds: int = SEEDS,
-    quick: bool = typer.Option(
-        False, "--quick", help="Smoke run: every reading, 2 seeds, 4 iterations."
-    ),
-    reproduce_dir: Path = typer.Option(
-        None,
-        "--reproduce",
-        help="A loopid reproduce run directory (e.g. runs): its finished cells of the same "
-        "configuration and seeds are copied, not recomputed.",
-    ),
-    quiet: bool = QUIET,
-    executor: str = EXECUTOR,
-    ray_address: str = RAY_ADDRESS,
-    workers: int = WORKERS,
-    memory: float = MEMORY,
-) -> None:
-    """Every reading of the paper's open details, one factor at a time from the probable
-    readings, and the literal preset: study.md, study.parquet and one figure per group of
-    readings."""
-    from loopid.experiments.executors import check_executor
-    from loopid.experiments.study import run_study
-
-    t0 = time.perf_counter()
-    check_executor(executor, ray_address)
-    workers = _workers(executor, workers)
-    output = _Output(quiet)
-    try:
-        readings = run_study(
-            out, _protocol_changes(quick, seeds), reproduce=reproduce_dir, executor=executor,
-            ray_address=ray_address, workers=workers, memory=memory, on_cell=output.on_cell,
-            log=output.log, started=t0,
-        )  # fmt: skip
-    finally:
-        output.close()
-    output.log(f"wrote study.parquet ({readings.num_rows} rows), study.md and figures to {out}/")
+for _family in families().values():  # the commands families add, after run
+    for _command in _family.commands:
+        app.command()(_command)
 
 
 @app.command()
@@ -445,7 +248,7 @@ def animate(
     if name not in configs:
         raise ValueError(f"{run_dir} has no scenario {name!r}; it has {', '.join(configs)}")
     path = out or run_dir / "animation.gif"
-    family.animate(run_dir, configs[name], _methods(method), seed, path)
+    family.animate(run_dir, configs[name], method_list(method), seed, path)
     typer.echo(f"wrote {path}", err=True)
 
 
@@ -455,7 +258,7 @@ def plot(
 ) -> None:
     """Remake DIR/figure.png and DIR/report.md from DIR/results.parquet (nothing is rerun)."""
     from loopid.experiments.execute import write_outputs
-    from loopid.experiments.plots import load_results
+    from loopid.experiments.results import load_results
 
     write_outputs(run_dir, load_results(run_dir))
     typer.echo(f"wrote {run_dir / 'figure.png'} and {run_dir / 'report.md'}", err=True)

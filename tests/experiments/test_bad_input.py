@@ -7,13 +7,13 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from loopid.algorithms import methods as M
 from loopid.algorithms.collect import policy_samples
+from loopid.algorithms.exploration import make_nu, nu_expert, nu_trajectory
 from loopid.algorithms.loop import make_loop_program, run_fixed_policy, run_learning, seed_keys
 from loopid.algorithms.plant import draw, make_plant
+from loopid.experiments.families.helicopter import methods as M
 from loopid.experiments.families.helicopter import run
-from loopid.experiments.scenarios import scenario
-from loopid.exploration import make_nu, nu_expert, nu_trajectory
+from loopid.experiments.families.helicopter.scenario import scenario
 from loopid.systems.linear import linear_dynamics, linear_task
 
 HOVER = scenario("hover", iterations=2, seeds=1, test_trajectories=2)

@@ -17,8 +17,8 @@ from loopid.experiments import artifacts, chunks
 from loopid.experiments.config import seeds_from_value, seeds_value
 from loopid.experiments.execute import run_cells
 from loopid.experiments.families import helicopter
+from loopid.experiments.families.helicopter.scenario import scenario
 from loopid.experiments.results import metadata, read_table
-from loopid.experiments.scenarios import scenario
 
 SMALL = dict(iterations=3, samples=50, test_trajectories=10)
 
@@ -76,9 +76,9 @@ def test_the_jobs_of_one_compiled_program_share_its_key(tmp_path, monkeypatch):
     time, the helicopter's learning methods share one key per scenario, over their chunks; the
     expert and the policy gradient have keys of their own, and a lane set's job (another
     program: its lanes are every method's seeds) another again."""
-    from loopid.algorithms.methods import METHODS
     from loopid.experiments import tasks
     from loopid.experiments.families import family_of
+    from loopid.experiments.families.helicopter.methods import METHODS
     from loopid.experiments.rundir import RunDir
 
     panels = [scenario(name, seeds=30, **SMALL) for name in ("hover", "funnel")]
@@ -214,7 +214,7 @@ _PEAK = textwrap.dedent(
     import resource, sys, numpy as np
     import loopid
     from loopid.experiments.families import helicopter as H
-    from loopid.experiments.scenarios import scenario
+    from loopid.experiments.families.helicopter.scenario import scenario
     name, method, S = sys.argv[1], sys.argv[2], int(sys.argv[3])
     s = scenario(name, iterations=2, seeds=S)
     rss0 = int(open("/proc/self/statm").read().split()[1]) * 4096

@@ -14,8 +14,8 @@ import pyarrow as pa
 import pytest
 
 from loopid.experiments.executors import Job, check_workers, run_local
+from loopid.experiments.families.helicopter.scenario import scenario
 from loopid.experiments.pool import core_shares, spread
-from loopid.experiments.scenarios import scenario
 
 
 def fake_cell(s, method, seeds, progress=None):

@@ -11,7 +11,7 @@ from loopid.algorithms.loop import EVALUATE, seed_keys, trajectory_mean
 from loopid.algorithms.plant import quadratic_form
 from loopid.experiments.families import helicopter as family
 from loopid.experiments.families.helicopter import assembly
-from loopid.experiments.scenarios import scenario
+from loopid.experiments.families.helicopter.scenario import scenario
 from loopid.systems import helicopter
 
 

@@ -4,9 +4,9 @@ with a warning, and gives the same family as :class:`FunctionFamily`."""
 
 import pytest
 
-from loopid.experiments.families import FAMILIES, Family, FunctionFamily
+from loopid.experiments.families import Family, FunctionFamily, families
 from loopid.experiments.families.base import Family as BaseFamily
-from loopid.experiments.scenarios import Scenario
+from loopid.experiments.families.helicopter.scenario import Scenario
 
 
 def parts(**changes):
@@ -66,11 +66,11 @@ def test_the_shipped_families_are_subclasses_with_their_capabilities():
     offered = {
         name: {c for c in ("load", "evaluate", "trajectories", "animate", "memory", "run_lanes")
                if getattr(family, c) is not None}
-        for name, family in FAMILIES.items()
+        for name, family in families().items()
     }  # fmt: skip
     assert offered["helicopter"] == {
         "load", "evaluate", "trajectories", "animate", "memory", "run_lanes",
     }  # fmt: skip
     assert offered["mdp"] == {"load", "evaluate", "trajectories", "memory"}
     assert offered["gym"] == {"load", "evaluate", "trajectories", "animate"}
-    assert all(type(f) is not FunctionFamily for f in FAMILIES.values())
+    assert all(type(f) is not FunctionFamily for f in families().values())

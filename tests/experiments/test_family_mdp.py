@@ -10,7 +10,10 @@ import pytest
 
 from loopid.algorithms.collect import policy_samples
 from loopid.algorithms.loop import make_loop_program, run_learning
-from loopid.algorithms.mdp_agent import (
+from loopid.control.value_iteration import occupancy
+from loopid.experiments.families.helicopter.methods import policy_fractions
+from loopid.experiments.families.mdp import MDP_SCENARIOS, mdp_figure, mdp_setup, run_mdp
+from loopid.experiments.families.mdp.agent import (
     DIAGNOSTICS,
     MDPModel,
     counts_model,
@@ -18,9 +21,6 @@ from loopid.algorithms.mdp_agent import (
     mdp_diagnostics,
     mdp_plant,
 )
-from loopid.algorithms.methods import policy_fractions
-from loopid.control.value_iteration import occupancy
-from loopid.experiments.families.mdp import MDP_SCENARIOS, mdp_figure, mdp_setup, run_mdp
 from loopid.experiments.results import trace_table
 from loopid.learners.base import Learner
 

@@ -8,8 +8,16 @@ import pyarrow.compute as pc
 import pytest
 from scipy import stats
 
-from loopid.experiments import findings, paired
-from loopid.experiments.paired import FAILS, HOLDS, HOLDS_WITH_TIES, NOT_MEASURED, TIE, TOO_FEW
+from loopid.experiments import paired
+from loopid.experiments.families.helicopter import findings
+from loopid.experiments.paired import (
+    FAILS,
+    HOLDS,
+    HOLDS_WITH_TIES,
+    NOT_MEASURED,
+    TIE,
+    TOO_FEW,
+)
 from loopid.experiments.results import SCHEMA
 
 PANELS = ("hover", "hover-delay", "funnel")

@@ -16,8 +16,8 @@ from conftest import tree_allclose
 from loopid.algorithms.loop import eval_noise, seed_keys
 from loopid.experiments.families.helicopter import agent as agent_of
 from loopid.experiments.families.helicopter import run, setup
+from loopid.experiments.families.helicopter.scenario import scenario
 from loopid.experiments.results import trace_table
-from loopid.experiments.scenarios import scenario
 
 pytestmark = pytest.mark.slow
 

@@ -7,8 +7,8 @@ import pytest
 
 from loopid.experiments import chunks
 from loopid.experiments.execute import run_cells
+from loopid.experiments.families.helicopter.scenario import scenario
 from loopid.experiments.results import metadata, read_table
-from loopid.experiments.scenarios import scenario
 
 pytestmark = pytest.mark.slow  # two compilations of the hover cell (~20 s each)
 

@@ -11,7 +11,7 @@ from conftest import cli
 from loopid import control
 from loopid.algorithms.gym_loop import test_episodes as flown_episodes
 from loopid.experiments.families import gym
-from loopid.experiments.scenarios import scenario
+from loopid.experiments.families.helicopter.scenario import scenario
 from loopid.systems import pendulum
 from loopid.systems.from_gymnasium import Slot
 

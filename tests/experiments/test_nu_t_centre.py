@@ -1,5 +1,5 @@
-"""Where ν_t is centred (loopid.exploration.Centre, planned_flight; the helicopter family's
-``nu_t_center`` reading): noise around the expert's planned flight is noise around *that*
+"""Where ν_t is centred (loopid.algorithms.exploration.Centre, planned_flight; the helicopter
+family's ``nu_t_center`` reading): noise around the expert's planned flight is noise around *that*
 flight, computed here independently by stepping the simulator with the expert's gain; on hover
 the planned flight is the trim itself, to the trim's own round-off drift."""
 
@@ -8,10 +8,10 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from loopid.algorithms.expert import expert_gains
-from loopid.algorithms.helicopter_plant import helicopter_plant
+from loopid.algorithms.exploration import Centre, nu_trajectory, planned_flight
 from loopid.experiments.families.helicopter.assembly import nu_t_centre
-from loopid.exploration import Centre, nu_trajectory, planned_flight
+from loopid.experiments.families.helicopter.expert import expert_gains
+from loopid.experiments.families.helicopter.plant import helicopter_plant
 from loopid.systems import helicopter
 from loopid.systems.tasks import make_task
 

@@ -22,8 +22,8 @@ from loopid.algorithms.policy_gradient import (
 )
 from loopid.experiments.families.helicopter import agent as agent_of
 from loopid.experiments.families.helicopter import run, setup
+from loopid.experiments.families.helicopter.scenario import scenario
 from loopid.experiments.results import trace_table
-from loopid.experiments.scenarios import scenario
 
 SCENARIO = scenario("hover", iterations=20, samples=500, seeds=4, test_trajectories=50)
 

@@ -10,7 +10,7 @@ import pytest
 
 from loopid.cli import main, scenario_from_options
 from loopid.experiments.execute import resolved_config
-from loopid.experiments.readings import (
+from loopid.experiments.families.helicopter.readings import (
     PRESETS,
     READING_FIELDS,
     continue_hint,
@@ -18,8 +18,8 @@ from loopid.experiments.readings import (
     preset_of,
     readings_of,
 )
+from loopid.experiments.families.helicopter.scenario import SCENARIOS, Scenario
 from loopid.experiments.rundir import RunDir
-from loopid.experiments.scenarios import SCENARIOS, Scenario
 
 QUICK = {"iterations": 4, "test_trajectories": 10, "seeds": 2}
 
@@ -76,7 +76,7 @@ def test_unknown_preset_exits_2_with_one_line(args, tmp_path, capsys, monkeypatc
 
 
 def test_readings_on_a_family_without_readings_is_refused():
-    with pytest.raises(ValueError, match="--readings applies to the helicopter scenarios"):
+    with pytest.raises(ValueError, match="mdp-trap .mdp family. has no presets; the scenarios of helicopter have"):
         scenario_from_options("mdp-trap", None, {}, [], "literal")
 
 

@@ -21,7 +21,7 @@ import scipy.linalg
 
 from loopid.algorithms.loop import noise_program, seed_keys
 from loopid.experiments.execute import run_cells
-from loopid.experiments.families import FAMILIES, family_named, family_of
+from loopid.experiments.families import families, family_named, family_of
 from loopid.experiments.results import read_table
 
 pytestmark = pytest.mark.slow  # about 40 s on 2 cores, nearly all compiling the guide's cell
@@ -48,7 +48,7 @@ def example(tmp_path_factory):
     home = tmp_path_factory.mktemp("guide")
     code = compile(guide_block(), str(GUIDE), "exec")
     namespace = {"__name__": "__main__"}
-    before = dict(FAMILIES)
+    before = dict(families())
     cwd = Path.cwd()
     try:
         os.chdir(home)
@@ -56,8 +56,8 @@ def example(tmp_path_factory):
     finally:
         os.chdir(cwd)
     yield namespace, home
-    for name in set(FAMILIES) - set(before):
-        FAMILIES.pop(name)
+    for name in set(families()) - set(before):
+        families().pop(name)
 
 
 def column(table, name) -> np.ndarray:
@@ -67,7 +67,7 @@ def column(table, name) -> np.ndarray:
 def test_family_is_registered_and_the_cli_builds_its_configs(example):
     ns, _ = example
     family = ns["FAMILY"]
-    assert FAMILIES["linear"] is family and family_named("linear") is family
+    assert families()["linear"] is family and family_named("linear") is family
     config = ns["LinearConfig"]()
     assert family_of(config) is family
     # the command line's option layer: defaults < --set < options; TOML lists become tuples

@@ -6,7 +6,9 @@ import pyarrow as pa
 import pyarrow.parquet as pq
 import pytest
 
-from loopid.experiments import findings, plots, report
+from loopid.experiments import report
+from loopid.experiments.families.helicopter import figure2 as plots
+from loopid.experiments.families.helicopter import findings
 from loopid.experiments.results import SCHEMA, read_table
 
 PANELS = ("hover", "hover-delay", "funnel")

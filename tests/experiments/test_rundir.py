@@ -10,8 +10,8 @@ import pytest
 
 import loopid.experiments.cell as cell
 import loopid.experiments.execute as execute
+from loopid.experiments.families.helicopter.scenario import scenario
 from loopid.experiments.results import read_table
-from loopid.experiments.scenarios import scenario
 
 SCENARIOS = [
     scenario("hover", iterations=3, seeds=2, test_trajectories=4),

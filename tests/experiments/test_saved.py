@@ -14,7 +14,7 @@ from loopid.algorithms.loop import seed_keys
 from loopid.experiments import artifacts
 from loopid.experiments.execute import run_cells
 from loopid.experiments.families import gym, helicopter, mdp
-from loopid.experiments.scenarios import scenario
+from loopid.experiments.families.helicopter.scenario import scenario
 from loopid.models.linear_offset import predict
 from loopid.systems import helicopter as h
 
@@ -248,7 +248,7 @@ def test_the_flown_path_costs_what_the_plant_charged(delay_mode):
     """flights.fly keeps the states of the plant's own test trajectory: its cost, recomputed
     from those states, is the plant's test cost of the same policy and noise (an independent
     recomputation: SPEC §4.1's sum, not the plant's scan)."""
-    from loopid.experiments.flights import fly
+    from loopid.experiments.families.helicopter.flights import fly
     from loopid.systems.tasks import trajectory_cost
 
     s = scenario("hover-delay", delay_mode=delay_mode)

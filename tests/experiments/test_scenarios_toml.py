@@ -8,7 +8,7 @@ from importlib import resources
 import pytest
 
 from loopid.experiments import model_planner
-from loopid.experiments.scenarios import (
+from loopid.experiments.families.helicopter.scenario import (
     FIELDS,
     SCENARIOS,
     Scenario,

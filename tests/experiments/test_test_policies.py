@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 
 from loopid.experiments.families.helicopter import run
-from loopid.experiments.scenarios import scenario
+from loopid.experiments.families.helicopter.scenario import scenario
 
 BASE = dict(iterations=4, seeds=2, test_trajectories=5)
 

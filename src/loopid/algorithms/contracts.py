@@ -33,8 +33,8 @@ class SharedSampler:
     ``sampler(key, count) = draw(key, count, param)`` -> :class:`Transitions` of ``count`` rows.
 
     ν_e and ν_en are one ``draw`` (the expert's rollouts) at two action-noise levels
-    (:func:`loopid.exploration.make_nus`). A loop program that serves several samplers (its
-    ``which``) compiles each distinct ``draw`` once and passes the parameter as a traced value,
+    (:func:`loopid.algorithms.exploration.make_nus`). A loop program that serves several samplers
+    (its ``which``) compiles each distinct ``draw`` once and passes the parameter as a traced value,
     so the expert's rollouts appear in the program once, not once per ν. (A frozen dataclass,
     not a NamedTuple, so that it can be jitted like the plain function it stands for.)"""
 

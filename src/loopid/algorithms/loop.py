@@ -356,6 +356,7 @@ def _trace(seeds, samples: int, rows: list[Row], final: dict | None = None) -> T
     final = None if final is None else {k: np.asarray(v) for k, v in final.items()}
     return Trace(np.asarray(seeds), iteration, (iteration - 1) * samples, stacked, final)
 
+
 __all__ = [  # the contracts and key streams, importable from here as before
     "EVALUATE", "TEST_POLICIES", "Agent", "Diagnostics", "EvalNoise", "IterationKeys",
     "LoopProgram", "Row", "SolverInfo", "Trace", "at_least", "cut_seeds", "drive", "eval_noise",

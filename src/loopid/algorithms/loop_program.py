@@ -12,9 +12,10 @@ and the exploration distribution ν, gives them to the online learner, solves th
                             a draw from ν                   otherwise,
 
 with ``p_n = ½`` for DAgger, ``0`` for Batch, and for Abbeel's method ``0`` at ``n = 2`` (ν = the
-expert) and ``1`` afterwards (:mod:`loopid.algorithms.methods`). Both candidate sets are always
-drawn (fixed shapes); the model's loss on each is recorded before the update, so every method
-reports how well its model predicts its own policy's data and ν's (the train/test mismatch).
+expert) and ``1`` afterwards (:mod:`loopid.experiments.families.helicopter.methods`). Both candidate
+sets are always drawn (fixed shapes); the model's loss on each is recorded before the update, so
+every method reports how well its model predicts its own policy's data and ν's (the train/test
+mismatch).
 
 The iteration is vmapped over seeds (and, in a lane set, over the methods' seeds: a method is
 data, its ``p_n`` and its ν index) and jitted once; the iteration number and ``p_n`` are traced

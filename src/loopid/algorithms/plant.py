@@ -123,11 +123,12 @@ def flatten(tr: Transitions) -> Transitions:
 @runtime_checkable
 class LoopPlant(Protocol):
     """What Algorithm 1 (:mod:`loopid.algorithms.loop_program`) needs of a real system: the
-    contract that :class:`Plant` (JAX systems), :class:`loopid.algorithms.mdp_agent.MDPPlant`
-    (finite MDPs) and :func:`loopid.algorithms.mpc_plant.mpc_plant` implement. ``policy`` is
-    what the plant flies: gains ``K [horizon, m, n]`` for :class:`Plant`, action probabilities
-    ``[states, actions]`` for ``MDPPlant``, a model's parameters (any pytree) that MPC re-plans
-    on for ``mpc_plant``. Shapes: ``S`` seeds, ``n_test`` test runs.
+    contract that :class:`Plant` (JAX systems),
+    :class:`loopid.experiments.families.mdp.agent.MDPPlant` (finite MDPs) and
+    :func:`loopid.algorithms.mpc_plant.mpc_plant` implement. ``policy`` is what the plant flies:
+    gains ``K [horizon, m, n]`` for :class:`Plant`, action probabilities ``[states, actions]`` for
+    ``MDPPlant``, a model's parameters (any pytree) that MPC re-plans on for ``mpc_plant``. Shapes:
+    ``S`` seeds, ``n_test`` test runs.
 
     - ``horizon``: steps of one training rollout and of one test trajectory.
     - ``rollout(policy, key) -> transitions [horizon]``: one training rollout (a NamedTuple of

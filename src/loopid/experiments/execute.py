@@ -62,10 +62,10 @@ from loopid.experiments.executors import (
     executor,
     ray_session,
 )
-from loopid.experiments.families import FAMILIES, Family, family_of, scenario_names
+from loopid.experiments.families import Family, family_of, scenario_names
 from loopid.experiments.report import cell_times, report_text
 from loopid.experiments.results import with_metadata, write_atomic_bytes
-from loopid.experiments.rundir import RunDir, normalized
+from loopid.experiments.rundir import RunDir, config_family, normalized
 from loopid.experiments.tasks import (
     ProgressFactory,
     lane_sets,
@@ -343,12 +343,9 @@ def run_family(run_dir) -> tuple[Family | None, dict[str, Scenario]]:
     cfg_file = run_dir / "config.toml"
     if cfg_file.is_file():
         config = tomllib.loads(cfg_file.read_text())
-        name = config.get("run", {}).get("family", "helicopter")
-        if name not in FAMILIES:
-            raise ValueError(f"{cfg_file}: unknown family {name!r}")
-        family = FAMILIES[name]
-        tables = normalized(config).get("scenario", {})  # older files: the readings they ran
         try:
+            family = config_family(config)
+            tables = normalized(config).get("scenario", {})  # older files: the readings they ran
             configs = {n: family.config(**d) for n, d in tables.items()}
         except (TypeError, ValueError) as e:
             raise ValueError(f"{cfg_file}: {' '.join(str(e).split())}") from None
@@ -360,13 +357,18 @@ def write_outputs(run_dir, table: pa.Table, command_s: float | None = None) -> N
     """``figure.png``, ``trajectories.png`` (what the saved final policies fly, for the families
     that draw it) and ``report.md`` of a run directory, drawn by its family. Without a
     ``config.toml`` (a bare ``results.parquet``): the family and packaged configs of the table's
-    scenario names, the helicopter's when no name is registered."""
+    scenario names (``ValueError`` when no registered family ships them)."""
     run_dir = Path(run_dir)
     family, configs = run_family(run_dir)
     if family is None:
         names = scenario_names()
         present = list(dict.fromkeys(table.column("scenario").to_pylist()))
-        family = next((names[s] for s in present if s in names), FAMILIES["helicopter"])
+        family = next((names[s] for s in present if s in names), None)
+        if family is None:
+            raise ValueError(
+                f"{run_dir} holds no config.toml and no registered family ships its scenarios "
+                f"({', '.join(present)})"
+            )
         configs = {s: family.scenarios[s] for s in present if s in family.scenarios}
     family.figure(table, run_dir / "figure.png", configs)
     if family.trajectories is not None and (run_dir / "config.toml").is_file():

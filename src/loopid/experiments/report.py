@@ -5,7 +5,7 @@ The common part: the version and date, the figure, the resolved ``config.toml``,
 (this command's, and the cells' as each recorded it) and, per scenario, the final test cost of
 every method (:func:`final_table`). Every number comes from ``results.parquet`` and the cells'
 recorded times. The helicopter's sections add the paper's findings
-(:mod:`loopid.experiments.findings`); the finite MDPs' add the exact bounds.
+(:mod:`loopid.experiments.families.helicopter.findings`); the finite MDPs' add the exact bounds.
 """
 
 import datetime
@@ -18,7 +18,7 @@ import pyarrow as pa
 
 import loopid
 from loopid.experiments import backend
-from loopid.experiments.findings import Costs, _g
+from loopid.experiments.costs import Costs, significant
 
 
 def cell_times(run_dir: Path) -> dict[tuple[str, str], tuple[float, float, float]]:
@@ -53,7 +53,8 @@ def final_table(c: Costs, s: str) -> list[str]:
         v = c.at(s, m)
         se = v.std(ddof=1) / np.sqrt(v.size) if v.size > 1 else 0.0
         lines.append(
-            f"| {m} | {_g(v.mean())} ± {_g(se)} | {_g(float(np.median(v)))} | "
+            f"| {m} | {significant(v.mean())} ± {significant(se)} | "
+            f"{significant(float(np.median(v)))} | "
             f"{c.diverged_seeds(s, m)}/{v.size} | {c.last_iteration(s, m)} |"
         )
     return lines

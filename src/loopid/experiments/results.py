@@ -136,3 +136,15 @@ def metadata(path: Path) -> dict[str, str]:
         for k, v in meta.items()
         if k.startswith(b"loopid.")
     }
+
+
+def load_results(run_dir) -> pa.Table:
+    """``run_dir/results.parquet``; a missing or unreadable table raises ValueError."""
+    run_dir = Path(run_dir)
+    results = run_dir / "results.parquet"
+    if not results.is_file():
+        raise ValueError(f"{str(run_dir)!r} holds no results.parquet")
+    try:
+        return read_table(results)
+    except (pa.ArrowException, OSError) as e:
+        raise ValueError(f"{str(results)!r} is not a readable Parquet table ({e})") from None

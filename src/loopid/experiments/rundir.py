@@ -7,7 +7,8 @@ Layout of ``DIR``::
     cells/S__M.parquet    one file per finished cell (scenario S × method M), written atomically;
                           its metadata holds the cell's wall time
     results.parquet       all finished cells, in a fixed order (rewritten after every cell)
-    figure.png, report.md drawn from results.parquet (:mod:`loopid.experiments.plots`,
+    figure.png, report.md drawn from results.parquet
+    (:mod:`loopid.experiments.families.helicopter.figure2`,
                           :mod:`loopid.experiments.report`)
 
 A cell file exists only once its cell has finished, so a killed run loses nothing finished, and
@@ -23,7 +24,7 @@ import pyarrow as pa
 import tomli_w
 
 from loopid.experiments.config import seeds_from_value, seeds_value
-from loopid.experiments.readings import continue_hint, readings_of
+from loopid.experiments.families import Family, family_called, scenario_names
 from loopid.experiments.results import (
     concat,
     metadata,
@@ -38,17 +39,33 @@ def to_toml(config: dict) -> str:
     return tomli_w.dumps(config)
 
 
+def config_family(config: dict) -> Family:
+    """The family of a ``config.toml`` (its ``[run] family``; a file without one: the family
+    whose packaged scenarios its scenario tables name). ``ValueError`` naming an unknown one."""
+    name = config.get("run", {}).get("family")
+    if name is not None:
+        return family_called(name)
+    names = scenario_names()
+    found = {names[s].name: names[s] for s in config.get("scenario", {}) if s in names}
+    if len(found) != 1:
+        raise ValueError(
+            "config.toml names no family ([run] family) and its scenarios are not one family's"
+        )
+    return next(iter(found.values()))
+
+
 def normalized(config: dict) -> dict:
     """``config`` in today's form: its seeds as :func:`seeds_value` writes them (older
-    ``config.toml`` files list them all), and a helicopter scenario's reading fields spelled out
-    (older ones lack them: they ran the literal readings, :func:`readings_of`)."""
+    ``config.toml`` files list them all), and each scenario table as its family normalises it
+    (:meth:`~loopid.experiments.families.base.Family.normalize`: fields an older file lacks
+    spelled out with the values it ran)."""
     run = dict(config.get("run", {}))
     if "seeds" in run:
         run["seeds"] = seeds_value(seeds_from_value(run["seeds"]))
-    scenarios = {
-        name: {**s, **readings_of(s)} if run.get("family", "helicopter") == "helicopter" else s
-        for name, s in config.get("scenario", {}).items()
-    }
+    scenarios = config.get("scenario", {})
+    if scenarios:
+        family = config_family(config)
+        scenarios = {name: family.normalize(dict(s)) for name, s in scenarios.items()}
     return {**config, "run": run, "scenario": scenarios}
 
 
@@ -69,7 +86,7 @@ class RunDir:
             new = tomllib.loads(to_toml(config))
             old, new = normalized(old), normalized(new)
             if old != new:
-                hint = continue_hint(old, new)
+                hint = config_family(new).continue_hint(old, new)
                 if hint is not None:
                     raise ValueError(
                         f"{self.path} holds a run made under other readings; continue it with "

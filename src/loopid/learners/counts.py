@@ -7,8 +7,8 @@ Rows are one-hot features ``x = e_{(s,a)} [f = S·A]`` and one-hot targets ``y =
     N = Σ_j x_j y_jᵀ  [f, t],       T̂_sa = (N_sa + α p_sa) / (Σ_{s'} N_sa(s') + α),
 
 the empirical distribution with ``α`` pseudo-counts on a prior row ``p_sa`` (default uniform;
-:func:`loopid.algorithms.mdp_agent.stay_prior` is "stay where you are"). With α → 0 it is the
-empirical estimator wherever a pair was seen and the prior elsewhere; its L1 error on a pair
+:func:`loopid.experiments.families.mdp.agent.stay_prior` is "stay where you are"). With α → 0 it is
+the empirical estimator wherever a pair was seen and the prior elsewhere; its L1 error on a pair
 seen n times falls like ``O(√(S/n))``. The online losses ``L_i(T̂) = E_{ρ_i}‖T_sa − T̂_sa‖₁``
 of the refit on all data so far have vanishing average regret (the paper's supplementary
 argument): this is FTRL on counts. ``weights(state)`` is T̂ as ``[f, t]`` (rows sum to 1).

@@ -2,8 +2,8 @@
 
 After controller N is written, the next round is Algorithm 1's iteration N + 1: ``m`` transitions
 (``[rounds] samples``), of which ``round(p m)`` from running π_N and the rest from ν, with the
-method's policy fraction p (:func:`loopid.algorithms.methods.policy_fractions`: DAgger
-``dagger_fraction``, ½ by default; Batch 0; Abbeel 0 in its first round, then 1).
+method's policy fraction p (:func:`loopid.experiments.families.helicopter.methods.policy_fractions`:
+DAgger ``dagger_fraction``, ½ by default; Batch 0; Abbeel 0 in its first round, then 1).
 
 Each update records one row of diagnostics (:func:`row`), all mean squared one-step prediction
 errors ``‖Δx' − f̂(Δx, Δu)‖²`` in the state's units squared:
@@ -28,9 +28,9 @@ richer model class.
 
 import numpy as np
 
-from loopid.algorithms.methods import policy_fractions
 from loopid.experiments.families.gym.agent import design_cost
 from loopid.experiments.families.gym.scenario import FRACTIONS
+from loopid.experiments.families.helicopter.methods import policy_fractions
 from loopid.rounds.config import RoundsConfig
 
 COLUMNS = ("loss_nu", "loss_policy", "loss_all", "relative", "online", "regret", "policy_cost")

@@ -65,4 +65,3 @@ __all__ = [
     "trajectory_cost",
     "trap_mdp",
 ]
-

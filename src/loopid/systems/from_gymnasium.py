@@ -484,4 +484,3 @@ class GymSystem:
         for a_ in (x, dx, du, dx_next, reward):
             a_[zero] = 0.0
         return Rollouts(x, dx, du, dx_next, t_buf, mask, reward, steps, terminated, finite)
-

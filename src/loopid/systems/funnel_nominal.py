@@ -134,8 +134,8 @@ def funnel_nominal(kind: str, task: Task) -> LinearOffsetModel:
 
     Returns a time-varying :class:`LinearOffsetModel`: A [T, 21, 21], B [T, 21, 4] with
     T = ``task.horizon`` = len(target) − 1 (the funnel's initial model in
-    :func:`loopid.algorithms.helicopter_plant.helicopter_nominal_model`). Raises ValueError for
-    an unknown ``kind``.
+    :func:`loopid.experiments.families.helicopter.plant.helicopter_nominal_model`). Raises
+    ValueError for an unknown ``kind``.
     """
     if kind not in FUNNEL_NOMINALS:
         raise ValueError(

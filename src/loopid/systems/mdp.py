@@ -246,7 +246,7 @@ def trap_mdp(
     take a uniformly random action with probability ε" (the paper's "base policy with random
     exploration in the actions") and learnt models whose prior for an unseen pair (s, a) is
     "stay in s" (the count estimator's and the classifier's default in
-    :mod:`loopid.algorithms.mdp_agent`):
+    :mod:`loopid.experiments.families.mdp.agent`):
 
     - ν reaches the lure only after one of its rare random jumps (ν(ℓ) ≈ γ(1−γ)ε/2 per unit
       of corridor occupancy), and then mostly takes the walk action there, so the lure's jump

@@ -5,7 +5,7 @@ pipeline above it (:mod:`loopid.experiments.execute`: cells, resume, atomic file
 progress, ``report.md``, ``loopid plot``, the command line) knows nothing else about it. A family
 module defines one frozen config dataclass and one subclass of :class:`Family`, an interface
 that says which parts a family must give and which it may; the registry
-(:mod:`loopid.experiments.families`) maps scenario names to families.
+(:mod:`loopid.experiments.families`, Python entry points) maps scenario names to families.
 
 Every config dataclass has the fields ``name``, ``iterations``, ``samples`` and ``seeds`` (a
 count, or for families that accept one, a tuple of seeds), validates itself when it is built
@@ -40,8 +40,10 @@ class Family(ABC):
 
     **Optional, with a default.** ``scenarios`` (the named scenarios it ships; default none:
     every scenario is built from a file, as ``gym``'s), :meth:`default_methods` (every
-    method), :meth:`check` (nothing to check), :meth:`shared` (nothing shared) and
-    :meth:`lane_sets` (each method alone).
+    method), :meth:`check` (nothing to check), :meth:`shared` (nothing shared),
+    :meth:`lane_sets` (each method alone), :meth:`normalize` (an older ``config.toml``'s
+    scenario table as it is), :meth:`continue_hint` (no hint), ``presets`` (none: ``loopid run
+    --readings`` refuses its scenarios) and ``commands`` (none).
 
     **Optional capabilities.** ``None`` on this class; a family that offers one defines it as a
     method, and the pipeline says in one line what a family without it cannot do:
@@ -70,6 +72,11 @@ class Family(ABC):
     config: ClassVar[type]
     methods: ClassVar[tuple[str, ...]]
     scenarios: ClassVar[Mapping[str, Any]] = {}
+    #: ``loopid run --readings NAME``: named sets of field values (``{name: {field: value}}``).
+    presets: ClassVar[Mapping[str, Mapping[str, Any]]] = {}
+    #: Commands the family adds to ``loopid`` (Typer command functions, named by their function
+    #: name with ``_`` as ``-``), after ``loopid run``.
+    commands: ClassVar[Sequence[Callable[..., None]]] = ()
 
     load: Callable[[Any, str, dict], tuple[Any, Any]] | None = None
     evaluate: Callable[..., Any] | None = None
@@ -122,6 +129,18 @@ class Family(ABC):
         its first has compiled it (:mod:`loopid.experiments.pool`)."""
         return [(m,) for m in methods]
 
+    def normalize(self, fields: dict) -> dict:
+        """A scenario table of a ``config.toml`` (plain TOML values) in today's form, so that a
+        run directory written before a field existed compares equal to today's config of the
+        same run (default: as it is)."""
+        return fields
+
+    def continue_hint(self, old: dict, new: dict) -> str | None:
+        """When a run directory's ``config.toml`` (``old``, normalised) differs from the new
+        run's (``new``): the command-line options that would continue the old run, or None
+        (the default) when there are none."""
+        return None
+
     def field_names(self) -> tuple[str, ...]:
         """The config dataclass's field names."""
         return tuple(f.name for f in fields(self.config))
@@ -142,7 +161,8 @@ class FunctionFamily(Family):
     ``default_methods(config)`` is a function here too."""
 
     def __init__(self, *, name, config, methods, build, read_file, run, figure, report, **parts):
-        optional = {"scenarios", "default_methods", "check", "shared", "lane_sets"}
+        optional = {"scenarios", "default_methods", "check", "shared", "lane_sets", "presets"}
+        optional |= {"commands", "normalize", "continue_hint"}
         optional |= {"load", "evaluate", "trajectories", "animate", "memory", "run_lanes"}
         unknown = sorted(set(parts) - optional)
         if unknown:

@@ -19,7 +19,6 @@ import numpy as np
 
 from loopid.algorithms.gym_loop import Exploration, run_learning_host
 from loopid.algorithms.loop import Trace
-from loopid.algorithms.methods import policy_fractions
 from loopid.experiments.config import seed_list
 from loopid.experiments.families.base import Progress
 from loopid.experiments.families.gym.agent import (
@@ -32,6 +31,7 @@ from loopid.experiments.families.gym.agent import (
 )
 from loopid.experiments.families.gym.env import EnvShape, env_shape, opened_system
 from loopid.experiments.families.gym.scenario import FRACTIONS, METHODS, GymScenario
+from loopid.experiments.families.helicopter.methods import policy_fractions
 from loopid.systems.from_gymnasium import CallablePolicy, GymSystem, OpenLoopPolicy
 
 

@@ -1,28 +1,30 @@
 """The helicopter family: the paper's Figure 2 (its hover and funnel tasks and nine methods)
 through the one pipeline.
 
-Config: :class:`loopid.experiments.scenarios.Scenario` (the packaged panels ``hover``,
-``hover-delay`` and ``funnel``, every protocol setting a field). Methods: the paper's nine,
-:data:`loopid.algorithms.methods.METHODS`.
+Config: :class:`loopid.experiments.families.helicopter.scenario.Scenario` (the packaged panels
+``hover``, ``hover-delay`` and ``funnel``, every protocol setting a field). Methods: the paper's
+nine, :data:`loopid.experiments.families.helicopter.methods.METHODS`.
 
 For a scenario the family builds the plant (the JAX helicopter under the task:
-:func:`loopid.algorithms.helicopter_plant.helicopter_plant`), the linearised expert L, the
-initial model (:func:`loopid.algorithms.helicopter_plant.helicopter_nominal_model`), the
+:func:`loopid.experiments.families.helicopter.plant.helicopter_plant`), the linearised expert L, the
+initial model (:func:`loopid.experiments.families.helicopter.plant.helicopter_nominal_model`), the
 model-based agent (linear offset model, FTRL, LQR) and the exploration distributions, once per
 compiled program (:mod:`loopid.experiments.families.helicopter.assembly`); then it runs a
 method on all seeds at once, or the learning methods as one lane set, the default on an
 accelerator (:mod:`loopid.experiments.families.helicopter.runs`, on
-:mod:`loopid.algorithms.loop`). Figure: the paper's Figure 2 (:mod:`loopid.experiments.plots`);
+:mod:`loopid.algorithms.loop`). Figure: the paper's Figure 2
+(:mod:`loopid.experiments.families.helicopter.figure2`);
 report: the final costs with each panel's readings of the details the paper leaves open
-(:mod:`loopid.experiments.readings`), and the paper's five findings
-(:mod:`loopid.experiments.findings`); saved policies and models loaded, evaluated, flown and
-animated (:mod:`loopid.experiments.families.helicopter.saved`).
+(:mod:`loopid.experiments.families.helicopter.readings`), and the paper's five findings
+(:mod:`loopid.experiments.families.helicopter.findings`); saved policies and models loaded,
+evaluated, flown and animated (:mod:`loopid.experiments.families.helicopter.saved`).
 """
 
-from loopid.algorithms import methods as M
 from loopid.experiments import model_planner
 from loopid.experiments.config import read_flat_file
 from loopid.experiments.families.base import Family
+from loopid.experiments.families.helicopter import methods as M
+from loopid.experiments.families.helicopter import readings
 from loopid.experiments.families.helicopter.assembly import (
     Setup,
     agent,
@@ -30,6 +32,7 @@ from loopid.experiments.families.helicopter.assembly import (
     program_key,
     setup,
 )
+from loopid.experiments.families.helicopter.commands import COMMANDS
 from loopid.experiments.families.helicopter.runs import (
     NOT_LANES,
     lane_sets,
@@ -46,7 +49,7 @@ from loopid.experiments.families.helicopter.saved import (
     report,
     trajectories,
 )
-from loopid.experiments.scenarios import FIELDS, SCENARIOS, Scenario, scenario
+from loopid.experiments.families.helicopter.scenario import FIELDS, SCENARIOS, Scenario, scenario
 
 
 class HelicopterFamily(Family):
@@ -57,12 +60,23 @@ class HelicopterFamily(Family):
     config = Scenario
     methods = M.METHODS
     scenarios = SCENARIOS
+    presets = readings.PRESETS
+    commands = COMMANDS
 
     def build(self, name, fields):
         return scenario(name, **fields)
 
     def read_file(self, path):
         return read_flat_file(path, FIELDS, tables=model_planner.TABLES)
+
+    def normalize(self, fields):
+        """A scenario table with every reading field spelled out: a ``config.toml`` written
+        before a reading became a field ran its literal reading
+        (:func:`~loopid.experiments.families.helicopter.readings.readings_of`)."""
+        return {**fields, **readings.readings_of(fields)}
+
+    def continue_hint(self, old, new):
+        return readings.continue_hint(old, new)
 
     run = staticmethod(run)
     figure = staticmethod(figure)

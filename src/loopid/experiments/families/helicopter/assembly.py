@@ -16,13 +16,13 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from loopid.algorithms import helicopter_plant as core
-from loopid.algorithms.expert import expert_gains
+from loopid.algorithms.exploration import Centre, make_nus, planned_flight
 from loopid.algorithms.loop import Agent, LoopProgram, make_loop_program, seed_keys
 from loopid.algorithms.plant import Plant
 from loopid.experiments import model_planner
-from loopid.experiments.scenarios import Scenario
-from loopid.exploration import Centre, make_nus, planned_flight
+from loopid.experiments.families.helicopter import plant as core
+from loopid.experiments.families.helicopter.expert import expert_gains
+from loopid.experiments.families.helicopter.scenario import Scenario
 from loopid.models.linear_offset import LinearOffsetModel
 from loopid.systems import helicopter
 from loopid.systems.tasks import make_task
@@ -34,12 +34,13 @@ class Setup(NamedTuple):
     Attributes:
       plant: the helicopter under the scenario's task (:class:`loopid.algorithms.plant.Plant`).
       K_expert: the expert's gains ``[T, 4, 21]`` (the LQR of the true simulator's
-        linearisation about the target, :func:`loopid.algorithms.expert.expert_gains`).
+        linearisation about the target,
+        :func:`loopid.experiments.families.helicopter.expert.expert_gains`).
       nominal: the initial model every learned offset adds to.
       model: the ``model_*`` model class (:func:`loopid.experiments.model_planner.model_class`),
         or None for the paper's linear offset model.
       agent: the model-based agent (:func:`loopid.experiments.model_planner.make_agent`).
-      nus: the ν samplers ``[ν_t, ν_e, ν_en]`` (:data:`loopid.exploration.NU_KINDS`).
+      nus: the ν samplers ``[ν_t, ν_e, ν_en]`` (:data:`loopid.algorithms.exploration.NU_KINDS`).
       program: the one compiled loop program that DAgger, Batch and Abbeel share, whichever ν
         they draw from (a traced switch).
       mpc: under ``planner_kind = "mpc"``, the plant flown by MPC on the seed's learned model
@@ -139,14 +140,16 @@ def _setup(key: Scenario) -> Setup:
 
 def nu_t_centre(reading: str, plant: Plant, K_expert: jax.Array) -> Centre | None:
     """What ν_t draws around under the reading ``nu_t_center``
-    (:data:`loopid.experiments.readings.NU_T_CENTERS`):
+    (:data:`loopid.experiments.families.helicopter.readings.NU_T_CENTERS`):
 
-    - ``target``: the cost's target with no action (None: :func:`loopid.exploration.nu_trajectory`'s
+    - ``target``: the cost's target with no action (None:
+    :func:`loopid.algorithms.exploration.nu_trajectory`'s
       default). On the funnel that target has no collective and a level attitude.
     - ``trim``: the target's states with the hover-trim controls in their previous-action
       entries, no action.
     - ``nominal``: the expert's planned flight, its states and its changes ``Δu``
-      (:func:`loopid.exploration.planned_flight`): on hover the trim itself, to round-off.
+      (:func:`loopid.algorithms.exploration.planned_flight`): on hover the trim itself, to
+      round-off.
     """
     if reading == "target":
         return None

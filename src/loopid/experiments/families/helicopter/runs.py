@@ -3,7 +3,7 @@ learning methods as one lane set (:func:`run_lanes`), and their programs' memory
 
 import numpy as np
 
-from loopid.algorithms import methods as M
+from loopid.algorithms.exploration import NU_KINDS
 from loopid.algorithms.loop import (
     Trace,
     cut_seeds,
@@ -16,14 +16,15 @@ from loopid.algorithms.loop import run_lanes as run_learning_lanes
 from loopid.algorithms.policy_gradient import run_policy_gradient
 from loopid.experiments import backend
 from loopid.experiments.families.base import Progress
+from loopid.experiments.families.helicopter import methods as M
 from loopid.experiments.families.helicopter.assembly import setup
-from loopid.experiments.scenarios import Scenario
-from loopid.exploration import NU_KINDS
+from loopid.experiments.families.helicopter.scenario import Scenario
 from loopid.systems.tasks import is_hover
 
 
 def run(method: str, s: Scenario, seeds=None, progress: Progress | None = None) -> Trace:
-    """Run ``method`` (:data:`loopid.algorithms.methods.METHODS`) on scenario ``s``.
+    """Run ``method`` (:data:`loopid.experiments.families.helicopter.methods.METHODS`) on scenario
+    ``s``.
 
     ``seeds``: integer seeds (default ``range(s.seeds)``). Returns a
     :class:`~loopid.algorithms.contracts.Trace` with one row per seed and iteration;

@@ -6,7 +6,6 @@ from pathlib import Path
 import jax
 import numpy as np
 
-from loopid.algorithms import methods as M
 from loopid.algorithms.keys import TEST, stream_key
 from loopid.algorithms.loop import (
     EVALUATE,
@@ -15,18 +14,19 @@ from loopid.algorithms.loop import (
 )
 from loopid.experiments import model_planner
 from loopid.experiments.artifacts import tested_gains
+from loopid.experiments.families.helicopter import methods as M
 from loopid.experiments.families.helicopter.assembly import scenario_plant, setup
-from loopid.experiments.findings import findings_section
+from loopid.experiments.families.helicopter.findings import findings_section
+from loopid.experiments.families.helicopter.scenario import Scenario, readings_line
 from loopid.experiments.report import final_cost_sections
-from loopid.experiments.scenarios import Scenario, readings_line
 from loopid.models.linear_offset import LinearOffsetModel
 from loopid.systems import helicopter
 from loopid.systems.tasks import is_hover
 
 
 def report(table, configs: dict[str, Scenario]) -> list[str]:
-    """The final costs per panel, each with its readings (:mod:`loopid.experiments.readings`),
-    and the five findings."""
+    """The final costs per panel, each with its readings
+    (:mod:`loopid.experiments.families.helicopter.readings`), and the five findings."""
     notes = {
         name: f"Readings: {readings_line(s)}."
         + ("" if model_planner.is_default(s) else f" {model_planner.describe(s)}")
@@ -37,8 +37,8 @@ def report(table, configs: dict[str, Scenario]) -> list[str]:
 
 
 def figure(table, path, configs) -> None:
-    """The paper's Figure 2 (:func:`loopid.experiments.plots.figure`)."""
-    from loopid.experiments.plots import figure as figure2
+    """The paper's Figure 2 (:func:`loopid.experiments.families.helicopter.figure2.figure`)."""
+    from loopid.experiments.families.helicopter.figure2 import figure as figure2
 
     figure2(table, path)
 
@@ -113,7 +113,7 @@ def _flights(run_dir, s: Scenario, methods, seed: int) -> dict:
     first test trajectory of that seed (its noise), from the task's start (MPC re-planning on
     the saved model where the run flew MPC)."""
     from loopid.experiments import artifacts
-    from loopid.experiments.flights import fly
+    from loopid.experiments.families.helicopter.flights import fly
 
     plant = scenario_plant(s)  # the whole Setup (its expert, model, program) only for MPC
     key = stream_key(jax.random.key(int(seed)), TEST)  # the loop's test noise
@@ -140,9 +140,9 @@ def _saved_methods(run_dir, name: str) -> list[str]:
 
 def trajectories(run_dir, configs: dict[str, Scenario], path) -> None:
     """``trajectories.png``: per panel, what each method's final policy flies at the first
-    seed (:mod:`loopid.experiments.flights`)."""
+    seed (:mod:`loopid.experiments.families.helicopter.flights`)."""
     from loopid.experiments import artifacts
-    from loopid.experiments.flights import trajectories_figure
+    from loopid.experiments.families.helicopter.flights import trajectories_figure
 
     panels = []
     for name, s in configs.items():
@@ -158,7 +158,7 @@ def trajectories(run_dir, configs: dict[str, Scenario], path) -> None:
 
 def animate(run_dir, s: Scenario, methods, seed: int, path) -> None:
     """An animated GIF of the methods' saved final policies flying scenario ``s`` at ``seed``."""
-    from loopid.experiments.flights import animate as animate_flights
+    from loopid.experiments.families.helicopter.flights import animate as animate_flights
 
     saved = _saved_methods(run_dir, s.name)
     for m in methods:

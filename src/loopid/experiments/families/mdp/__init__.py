@@ -13,11 +13,11 @@ Scenarios (:data:`MDP_SCENARIOS`):
 
 Methods (:data:`MDP_METHODS`): ``dagger`` (p_n = ½), ``batch`` (p_n = 0), ``abbeel`` (ν at
 n = 2, then the policy only); the fractions come from
-:func:`loopid.algorithms.methods.policy_fractions`. Policy draws are ``geometric`` (exact
-draws from D_{μ,π}, the paper's analysis). Every method of a scenario shares one compiled loop
-program.
+:func:`loopid.experiments.families.helicopter.methods.policy_fractions`. Policy draws are
+``geometric`` (exact draws from D_{μ,π}, the paper's analysis). Every method of a scenario shares
+one compiled loop program.
 
-Extra result columns (:func:`loopid.algorithms.mdp_agent.mdp_diagnostics`): ``j_policy``,
+Extra result columns (:func:`loopid.experiments.families.mdp.agent.mdp_diagnostics`): ``j_policy``,
 ``j_best``, ``j_mixture``, ``j_optimal``, ``bound`` (Theorem 3.1 while all data came from ν,
 Lemma 4.1 once the policies contribute), ``eps_prd_l1``, ``eps_prd_kl``, ``eps_mdl_l1``,
 ``eps_oc``, ``c_nu``, ``c_nu_policy``. ``test_cost`` is the exact J of the iteration's policy.

@@ -12,7 +12,6 @@ from typing import NamedTuple
 import jax
 import numpy as np
 
-from loopid.algorithms import methods as M
 from loopid.algorithms.loop import (
     LoopProgram,
     Row,
@@ -21,7 +20,14 @@ from loopid.algorithms.loop import (
     make_loop_program,
     run_learning,
 )
-from loopid.algorithms.mdp_agent import (
+from loopid.experiments.config import (
+    check_choice,
+    check_int,
+    check_number,
+    replaced,
+)
+from loopid.experiments.families.helicopter import methods as M
+from loopid.experiments.families.mdp.agent import (
     classifier_model,
     counts_model,
     explicit_nu,
@@ -29,12 +35,6 @@ from loopid.algorithms.mdp_agent import (
     mdp_diagnostics,
     mdp_plant,
     policy_nu,
-)
-from loopid.experiments.config import (
-    check_choice,
-    check_int,
-    check_number,
-    replaced,
 )
 from loopid.systems.mdp import TRAP_WALK, FiniteMDP, random_mdp, trap_mdp
 

@@ -11,7 +11,8 @@ r"""Finite MDPs through the same loop as the helicopter: plant, ν, agent, exact
 - :func:`mdp_agent`: the tabular model class and its learner (:func:`counts_model`: the count
   estimator; :func:`classifier_model`: the deterministic model learnt by online hinge
   classification), and value iteration on the learnt model (greedy policy).
-- :func:`mdp_diagnostics`: the exact theory each iteration (:mod:`loopid.theory`), as extra
+- :func:`mdp_diagnostics`: the exact theory each iteration
+(:mod:`loopid.experiments.families.mdp.theory`), as extra
   result columns.
 
 Sampling uses inverse CDFs (one uniform per draw), so a step costs O(S) and no Gumbel noise.
@@ -24,9 +25,9 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from loopid import theory
 from loopid.algorithms.loop import Agent, Diagnostics, SolverInfo
 from loopid.control.value_iteration import evaluate, occupancy, policy_iteration, value_iteration
+from loopid.experiments.families.mdp import theory
 from loopid.learners.base import Learner
 from loopid.learners.counts import count_estimator
 from loopid.learners.hinge import hinge_loss, online_hinge
@@ -280,9 +281,9 @@ def mdp_diagnostics(
     ``rule="lemma"`` (DAgger): errors averaged over i ≤ n on ``ρ_i = (1−q_i)ν + q_i D_{μ,π_i}``,
     bound = Lemma 4.1's RHS (bounds j_best and j_mixture), with ``q_i`` the policy fraction ``p``
     of the iteration (``q`` where no batch was learned yet, iteration 1) and the constant taken
-    at the worst ``q_i`` (:func:`loopid.theory.dagger_constant`; ∞ once ν's share is 0, as for
-    Abbeel's policy-only iterations: no guarantee). ``rule="theorem"`` (Batch): errors of
-    the current model on ν, bound = Theorem 3.1's RHS (bounds j_policy, hence j_best).
+    at the worst ``q_i`` (:func:`loopid.experiments.families.mdp.theory.dagger_constant`; ∞ once ν's
+    share is 0, as for Abbeel's policy-only iterations: no guarantee). ``rule="theorem"`` (Batch):
+    errors of the current model on ν, bound = Theorem 3.1's RHS (bounds j_policy, hence j_best).
     ``rule="auto"`` (default) follows the data: Theorem 3.1 while every batch so far came from
     ν alone (policy fraction ``p = 0``: Batch, and iteration 1 of every method), Lemma 4.1 once
     a policy contributed (DAgger from n = 2; Abbeel from n = 3). One compiled cell then serves

@@ -35,10 +35,15 @@ from typing import NamedTuple
 import pyarrow as pa
 import pyarrow.compute as pc
 
-from loopid.algorithms.methods import LEARNING_METHODS, METHODS
-from loopid.experiments.readings import DEFAULT_PRESET, PRESETS, READING_FIELDS, reading_text
+from loopid.experiments.families.helicopter.methods import LEARNING_METHODS, METHODS
+from loopid.experiments.families.helicopter.readings import (
+    DEFAULT_PRESET,
+    PRESETS,
+    READING_FIELDS,
+    reading_text,
+)
+from loopid.experiments.families.helicopter.scenario import SCENARIOS, Scenario
 from loopid.experiments.results import concat
-from loopid.experiments.scenarios import SCENARIOS, Scenario
 
 
 class Reading(NamedTuple):

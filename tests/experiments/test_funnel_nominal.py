@@ -14,7 +14,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from loopid.algorithms.helicopter_plant import helicopter_nominal_model, helicopter_plant
+from loopid.experiments.families.helicopter.plant import helicopter_nominal_model, helicopter_plant
 from loopid.models.linear_offset import time_varying_nominal
 from loopid.systems import helicopter as h
 from loopid.systems.funnel_nominal import (

@@ -2,10 +2,10 @@
 
 The paper leaves some details of its experiments open; each defensible reading is a scenario
 field (``delay_mode``, ``nu_pending``, ``funnel_nominal``, ``pads``, ``pg_samples``;
-:mod:`loopid.experiments.readings`). A :class:`Reading` changes fields of the paper's panels
-(:data:`SCENARIOS`, the preset ``probable``) and names the panels and methods whose results the
-change can touch. The study runs each reading one factor at a time from ``probable``, and the
-preset ``literal`` as a whole. It is one run directory
+:mod:`loopid.experiments.families.helicopter.readings`). A :class:`Reading` changes fields of the
+paper's panels (:data:`SCENARIOS`, the preset ``probable``) and names the panels and methods whose
+results the change can touch. The study runs each reading one factor at a time from ``probable``,
+and the preset ``literal`` as a whole. It is one run directory
 (:func:`loopid.experiments.execute.run_cells`: resume, atomic cells, workers, Ray) holding, for
 every reading, exactly those cells, as the scenario ``PANEL-ID`` (the default reading's
 scenarios keep the panels' names); every other cell of a reading is the default's or a part's,
@@ -13,9 +13,10 @@ which is the same computation (a method whose inputs the field does not reach). 
 reading is the run of ``loopid reproduce`` itself: ``--reproduce DIR`` copies that run's
 finished cells of the same configuration (:func:`share_cells`) instead of computing them again.
 
-The readings themselves are in :mod:`loopid.experiments.study_readings`, the outputs
-(``study.md`` and the figures) in :mod:`loopid.experiments.study_report`; this
-module plans the study's cells and runs it (:func:`run_study`, what ``loopid study`` calls).
+The readings themselves are in :mod:`loopid.experiments.families.helicopter.study_readings`, the
+outputs (``study.md`` and the figures) in
+:mod:`loopid.experiments.families.helicopter.study_report`; this module plans the study's cells and
+runs it (:func:`run_study`, what ``loopid study`` calls).
 """
 
 import time
@@ -25,9 +26,9 @@ from pathlib import Path
 import pyarrow as pa
 
 from loopid.experiments.config import seeds_from_value
-from loopid.experiments.readings import READING_FIELDS
-from loopid.experiments.scenarios import SCENARIOS, Scenario
-from loopid.experiments.study_readings import (
+from loopid.experiments.families.helicopter.readings import READING_FIELDS
+from loopid.experiments.families.helicopter.scenario import SCENARIOS, Scenario
+from loopid.experiments.families.helicopter.study_readings import (
     BY_ID,
     DEFAULT,
     FIGURES,
@@ -38,7 +39,11 @@ from loopid.experiments.study_readings import (
     source,
     study_table,
 )
-from loopid.experiments.study_report import funnel_prediction_lines, load, write_outputs
+from loopid.experiments.families.helicopter.study_report import (
+    funnel_prediction_lines,
+    load,
+    write_outputs,
+)
 
 __all__ = [
     "BY_ID",
@@ -152,4 +157,3 @@ def run_study(
         out, readings, base, command_s=time.perf_counter() - started, prediction=prediction
     )
     return readings
-

@@ -15,12 +15,12 @@ import numpy as np
 import pytest
 
 from conftest import tree_allclose
-from loopid.algorithms import methods as M
+from loopid.algorithms.exploration import nu_trajectory
 from loopid.algorithms.loop import eval_noise, make_loop_program, run_learning, seed_keys
 from loopid.algorithms.model_based import linear_agent
 from loopid.algorithms.plant import make_plant
 from loopid.control import dlqr_affine
-from loopid.exploration import nu_trajectory
+from loopid.experiments.families.helicopter import methods as M
 from loopid.learners import ftrl_least_squares
 from loopid.models.linear_offset import LinearOffsetModel, to_matrices
 from loopid.systems.linear import linear_dynamics, linear_task

@@ -14,12 +14,15 @@ import numpy as np
 import pyarrow as pa
 import pyarrow.compute as pc
 
-from loopid.algorithms.methods import METHODS
-from loopid.experiments.paired import VERDICT_WORDS
-from loopid.experiments.readings import DEFAULT_PRESET, PRESETS, READING_FIELDS, reading_text
-from loopid.experiments.results import concat, write_atomic_bytes
-from loopid.experiments.scenarios import Scenario
-from loopid.experiments.study_readings import (
+from loopid.experiments.families.helicopter.methods import METHODS
+from loopid.experiments.families.helicopter.readings import (
+    DEFAULT_PRESET,
+    PRESETS,
+    READING_FIELDS,
+    reading_text,
+)
+from loopid.experiments.families.helicopter.scenario import Scenario
+from loopid.experiments.families.helicopter.study_readings import (
     ALL_PANELS,
     BY_ID,
     DEFAULT,
@@ -28,6 +31,8 @@ from loopid.experiments.study_readings import (
     Reading,
     relabel,
 )
+from loopid.experiments.paired import VERDICT_WORDS
+from loopid.experiments.results import concat, write_atomic_bytes
 
 
 def _cells(table: pa.Table, panel: str, method: str) -> pa.Table:
@@ -45,7 +50,7 @@ def _g(x: float) -> str:
 
 def medians(table: pa.Table) -> dict[tuple[str, str], float]:
     """``{(panel, method): median over seeds of the final test cost}`` of one reading."""
-    from loopid.experiments.findings import Costs
+    from loopid.experiments.costs import Costs
 
     c = Costs(table)
     return {
@@ -78,9 +83,9 @@ def medians_table(table: pa.Table) -> list[str]:
 
 
 def reading_findings(table: pa.Table, r: Reading, base: dict[str, Scenario]) -> list:
-    """The paper's five findings (:func:`loopid.experiments.findings.findings`) on reading
-    ``r``'s panels, each with its verdict (:func:`loopid.experiments.paired.combine`)."""
-    from loopid.experiments.findings import findings
+    """The paper's five findings (:func:`loopid.experiments.families.helicopter.findings.findings`)
+    on reading ``r``'s panels, each with its verdict (:func:`loopid.experiments.paired.combine`)."""
+    from loopid.experiments.families.helicopter.findings import findings
 
     hover = {p for p in r.panels if base[p].task in ("hover", "hover-delay")}
     sub = _subtable(table, r.id)
@@ -94,7 +99,7 @@ SWEPT_METHODS = {"pg": ("pg",), "nu-t": ("dagger-t", "batch-t")}
 
 def figures(table: pa.Table, out: Path) -> list[Path]:
     """One figure per group of readings, in the layout of Figure 2 (a panel per reading)."""
-    from loopid.experiments.plots import figure
+    from loopid.experiments.families.helicopter.figure2 import figure
 
     paths = []
     for group in FIGURES:
@@ -158,7 +163,8 @@ def study_text(
         "Every reading of the details the paper leaves open, one factor at a time from the "
         "default preset `probable`, and the preset `literal` (the literal readings of the "
         "paper's text) as a whole. Each reading runs only the cells its fields can change; the "
-        "others are the default's or another reading's (see `loopid.experiments.study`). "
+        "others are the default's or another reading's (see "
+        "`loopid.experiments.families.helicopter.study`). "
         "Medians over seeds of the test cost at each method's final iteration; "
         f"{seeds} seeds. 1e8 is the cost cap (diverged).",
         "",

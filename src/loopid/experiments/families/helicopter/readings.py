@@ -1,7 +1,7 @@
 """Readings: the details of the paper's experiments that its text leaves open, and the presets.
 
 A *reading* is one defensible way to build such a detail; each is a field of
-:class:`~loopid.experiments.scenarios.Scenario` (:data:`READING_FIELDS`):
+:class:`~loopid.experiments.families.helicopter.scenario.Scenario` (:data:`READING_FIELDS`):
 
 - ``delay_mode``: how an actuation delay of d steps acts. ``latency``: the policy acts at once
   on the state observed d steps earlier, and the learner records the true transition
@@ -23,9 +23,9 @@ A *reading* is one defensible way to build such a detail; each is a field of
   trajectory") draws around: the cost's target with no action (``target``), the target's
   states with the hover-trim controls (``trim``), or the expert's planned flight, its states and
   its actions (``nominal``: the expert flown on the simulator from the start state without
-  process noise); :func:`loopid.exploration.planned_flight`. On hover all three are the trim, to
-  round-off; on the funnel the target has no collective and a level attitude, where the expert
-  flies the circles pitched about 37° with collective about 0.49.
+  process noise); :func:`loopid.algorithms.exploration.planned_flight`. On hover all three are the
+  trim, to round-off; on the funnel the target has no collective and a level attitude, where the
+  expert flies the circles pitched about 37° with collective about 0.49.
 
 A *preset* is a named bundle of readings (:data:`PRESETS`):
 
@@ -90,7 +90,8 @@ PRESETS: dict[str, dict] = {
     },
 }
 
-#: The preset the packaged scenarios and :class:`~loopid.experiments.scenarios.Scenario` use.
+#: The preset the packaged scenarios and
+# :class:`~loopid.experiments.families.helicopter.scenario.Scenario` use.
 DEFAULT_PRESET = "probable"
 
 

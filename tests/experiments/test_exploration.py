@@ -1,4 +1,4 @@
-"""The ν samplers as a loop program holds them (loopid.exploration,
+"""The ν samplers as a loop program holds them (loopid.algorithms.exploration,
 loop_program._sampler_branches): ν_e and ν_en are one drawing function at two action-noise
 levels, so the switch that picks a method's ν has two branches for three samplers, and each
 sampler drawn through its branch gives the very draws it gives alone, bit for bit."""
@@ -8,10 +8,10 @@ import numpy as np
 import pytest
 
 from loopid.algorithms.contracts import SharedSampler
-from loopid.algorithms.expert import expert_gains
-from loopid.algorithms.helicopter_plant import helicopter_plant
+from loopid.algorithms.exploration import NU_KINDS, make_nu, make_nus
 from loopid.algorithms.loop_program import _sampler_branches
-from loopid.exploration import NU_KINDS, make_nu, make_nus
+from loopid.experiments.families.helicopter.expert import expert_gains
+from loopid.experiments.families.helicopter.plant import helicopter_plant
 from loopid.systems.tasks import make_task
 
 SAMPLES = 30

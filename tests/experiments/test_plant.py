@@ -10,10 +10,10 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from loopid.algorithms.expert import expert_gains
-from loopid.algorithms.helicopter_plant import helicopter_plant
 from loopid.algorithms.loop import eval_noise, seed_keys
 from loopid.algorithms.plant import make_plant, noise_columns, ordered_sum
+from loopid.experiments.families.helicopter.expert import expert_gains
+from loopid.experiments.families.helicopter.plant import helicopter_plant
 from loopid.systems.linear import linear_dynamics, linear_task
 from loopid.systems.tasks import make_task
 

@@ -6,8 +6,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from loopid import theory
 from loopid.control.value_iteration import evaluate, occupancy, policy_iteration, value_iteration
+from loopid.experiments.families.mdp import theory
 from loopid.systems.mdp import horizon_factor, random_mdp
 
 

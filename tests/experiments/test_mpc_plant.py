@@ -10,12 +10,12 @@ import numpy as np
 import pytest
 
 from loopid import control
-from loopid.algorithms.expert import expert_gains
-from loopid.algorithms.helicopter_plant import helicopter_plant
 from loopid.algorithms.loop import eval_noise, seed_keys
 from loopid.algorithms.mpc_plant import mpc_plant
 from loopid.algorithms.planning_agent import feature_model
 from loopid.algorithms.plant import flatten, quadratic_form
+from loopid.experiments.families.helicopter.expert import expert_gains
+from loopid.experiments.families.helicopter.plant import helicopter_plant
 from loopid.learners import ftrl_least_squares
 from loopid.models.feature_model import polynomial
 from loopid.models.linear_offset import hover_nominal

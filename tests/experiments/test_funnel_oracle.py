@@ -12,8 +12,8 @@ import numpy as np
 import pytest
 
 from loopid.algorithms import loop
-from loopid.algorithms.helicopter_plant import helicopter_plant
 from loopid.algorithms.model_based import finite_horizon_gains
+from loopid.experiments.families.helicopter.plant import helicopter_plant
 from loopid.systems import helicopter as h
 from loopid.systems.tasks import make_task
 

@@ -2,11 +2,12 @@
 values and, for the details it leaves open, the probable readings as defaults.
 
 A :class:`Scenario` is one frozen record; every setting and every reading
-(:mod:`loopid.experiments.readings`) is a field, and the whole record is written into each run
-directory's ``config.toml``. The paper's three panels are TOML
-files shipped in the package (``experiments/scenarios/{hover,hover-delay,funnel}.toml``, every
-field spelled out); ``SCENARIOS`` holds them, :func:`scenario` returns one with fields overridden
-and validated, and :func:`read_config` reads a user's ``--config`` TOML.
+(:mod:`loopid.experiments.families.helicopter.readings`) is a field, and the whole record is written
+into each run directory's ``config.toml``. The paper's three panels are TOML
+files shipped in the package
+(``experiments/families/helicopter/scenarios/{hover,hover-delay,funnel}.toml``, every field spelled
+out); ``SCENARIOS`` holds them, :func:`scenario` returns one with fields overridden and validated,
+and :func:`read_config` reads a user's ``--config`` TOML.
 """
 
 import dataclasses
@@ -22,7 +23,7 @@ from loopid.algorithms.policy_gradient import SAMPLES_MODES as PG_SAMPLES
 from loopid.algorithms.policy_gradient import UPDATES as PG_UPDATES
 from loopid.experiments import model_planner
 from loopid.experiments.config import check_int, check_number, read_flat_file, replaced
-from loopid.experiments.readings import (
+from loopid.experiments.families.helicopter.readings import (
     DEFAULT_PRESET,
     NU_T_CENTERS,
     PRESETS,
@@ -53,8 +54,8 @@ class Scenario(model_planner.ModelPlanner):
       stop_norm: training trajectories restart when ‖[Δx; Δu]‖₂ exceeds this.
       nu_pending, delay_mode, funnel_nominal, pads, pg_samples, pg_update, nu_t_center: the
         readings of the
-        details the paper leaves open (:mod:`loopid.experiments.readings`); their defaults are
-        the preset
+        details the paper leaves open (:mod:`loopid.experiments.families.helicopter.readings`);
+        their defaults are the preset
         ``probable``: ``delay_mode = "latency"`` (the policy acts at once on the state observed
         d steps earlier; the learner records the true transition), ``nu_pending = "hold"``
         (used under ``fifo`` only), ``funnel_nominal = "heading"``, ``pads = True`` and
@@ -203,7 +204,7 @@ def from_dict(d: dict, *, where: str = "scenario") -> Scenario:
 
 
 def _load_packaged() -> dict[str, Scenario]:
-    folder = resources.files("loopid.experiments") / "scenarios"
+    folder = resources.files("loopid.experiments.families.helicopter") / "scenarios"
     out = {}
     for name in ("hover", "hover-delay", "funnel"):  # the paper's panel order
         text = (folder / f"{name}.toml").read_text(encoding="utf-8")

@@ -14,7 +14,7 @@ from pathlib import Path
 import numpy as np
 import pyarrow as pa
 
-from loopid.experiments.results import read_table, write_atomic_bytes
+from loopid.experiments.results import write_atomic_bytes
 
 #: Label, colour and line style per method (the paper's legend names).
 STYLE = {
@@ -98,20 +98,3 @@ def figure(table: pa.Table, path: Path) -> Path:
     path = Path(path)
     write_atomic_bytes(buf.getvalue(), path)
     return path
-
-
-def load_results(run_dir: Path) -> pa.Table:
-    """``run_dir/results.parquet``; a missing or unreadable table raises ValueError."""
-    run_dir = Path(run_dir)
-    results = run_dir / "results.parquet"
-    if not results.is_file():
-        raise ValueError(f"{str(run_dir)!r} holds no results.parquet")
-    try:
-        return read_table(results)
-    except (pa.ArrowException, OSError) as e:
-        raise ValueError(f"{str(results)!r} is not a readable Parquet table ({e})") from None
-
-
-def plot_dir(run_dir: Path) -> Path:
-    """Remake ``run_dir/figure.png`` from ``run_dir/results.parquet`` alone; return its path."""
-    return figure(load_results(run_dir), Path(run_dir) / "figure.png")

@@ -20,7 +20,8 @@ from loopid.algorithms.loop import (
     run_lanes,
     run_learning,
 )
-from loopid.algorithms.mdp_agent import (
+from loopid.experiments.families.helicopter.methods import policy_fractions
+from loopid.experiments.families.mdp.agent import (
     counts_model,
     explicit_nu,
     mdp_agent,
@@ -28,7 +29,6 @@ from loopid.algorithms.mdp_agent import (
     mdp_plant,
     policy_nu,
 )
-from loopid.algorithms.methods import policy_fractions
 from loopid.systems.mdp import random_mdp
 
 ITERATIONS, SAMPLES, SEEDS = 5, 12, np.arange(4)

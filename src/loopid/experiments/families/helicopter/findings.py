@@ -31,6 +31,7 @@ from typing import NamedTuple
 import numpy as np
 import pyarrow as pa
 
+from loopid.experiments.costs import Costs, significant
 from loopid.experiments.paired import (
     FAILS,
     HOLDS,
@@ -38,7 +39,6 @@ from loopid.experiments.paired import (
     Comparison,
     below,
     combine,
-    pair,
 )
 
 #: "Good performance": final cost at most this multiple of the expert's (findings 2 and 5).
@@ -68,52 +68,6 @@ class Finding(NamedTuple):
     details: list[str]
     outcomes: tuple[str, ...] = ()
     mean_outcomes: tuple[str, ...] = ()
-
-
-class Costs:
-    """Per-seed test costs of a table, by (scenario, method, iteration)."""
-
-    def __init__(self, table: pa.Table):
-        self.scenario = np.asarray(table.column("scenario").to_pylist(), dtype=object)
-        self.method = np.asarray(table.column("method").to_pylist(), dtype=object)
-        self.seed = np.asarray(table.column("seed"))
-        self.iteration = np.asarray(table.column("iteration"))
-        self.cost = np.asarray(table.column("test_cost"))
-        self.diverged = np.asarray(table.column("diverged"))
-        self.scenarios = list(dict.fromkeys(self.scenario))
-        self.methods = list(dict.fromkeys(self.method))
-
-    def has(self, s: str, m: str) -> bool:
-        return bool(np.any((self.scenario == s) & (self.method == m)))
-
-    def last_iteration(self, s: str, m: str) -> int:
-        return int(self.iteration[(self.scenario == s) & (self.method == m)].max())
-
-    def _rows(self, s: str, m: str, iteration: int | None) -> np.ndarray:
-        it = self.last_iteration(s, m) if iteration is None else iteration
-        return (self.scenario == s) & (self.method == m) & (self.iteration == it)
-
-    def at(self, s: str, m: str, iteration: int | None = None) -> np.ndarray:
-        """``[seeds]`` test costs at ``iteration`` (default: the final one)."""
-        return self.cost[self._rows(s, m, iteration)]
-
-    def paired(
-        self, s: str, a: str, b: str, it_a: int | None = None, it_b: int | None = None
-    ) -> tuple[np.ndarray, np.ndarray]:
-        """The test costs of methods ``a`` (at ``it_a``) and ``b`` (at ``it_b``; default: each
-        one's final iteration) on the seeds both ran, aligned by seed."""
-        ra, rb = self._rows(s, a, it_a), self._rows(s, b, it_b)
-        return pair(self.seed[ra], self.cost[ra], self.seed[rb], self.cost[rb])
-
-    def diverged_seeds(self, s: str, m: str) -> int:
-        """Seeds with at least one diverged test trajectory at the final iteration."""
-        sel = (self.scenario == s) & (self.method == m)
-        sel &= self.iteration == self.last_iteration(s, m)
-        return int(np.sum(self.diverged[sel] > 0))
-
-
-def _g(x: float) -> str:
-    return f"{x:.4g}"
 
 
 #: What a finding's check returns, per detail line: the outcomes it judges, and the line.
@@ -160,7 +114,8 @@ def findings(table: pa.Table, hover_panels: set[str] | None = None) -> list[Find
                 if c.has(s, d) and c.has(s, b):
                     r = cmp(on, s, d, b)
                     dv, bv = stat(c.at(s, d)), stat(c.at(s, b))
-                    out.append(((r.outcome,), f"{s} ν_{nu}: D {_g(dv)}, B {_g(bv)}: {r.text()}"))
+                    line = f"{s} ν_{nu}: D {significant(dv)}, B {significant(bv)}: {r.text()}"
+                    out.append(((r.outcome,), line))
         return out
 
     def good(stat, s, m):
@@ -178,7 +133,7 @@ def findings(table: pa.Table, hover_panels: set[str] | None = None) -> list[Find
             line = (
                 f"{s}: good DAgger {len(d_good)}/3 ({', '.join(d_good) or 'none'}), "
                 f"good Batch {len(b_good)}/3 ({', '.join(b_good) or 'none'}); "
-                f"L {_g(stat(c.at(s, 'expert')))}"
+                f"L {significant(stat(c.at(s, 'expert')))}"
             )
             out.append(((_ok(len(d_good) == 3 and len(b_good) == 1),), line))
         return out
@@ -193,7 +148,8 @@ def findings(table: pa.Table, hover_panels: set[str] | None = None) -> list[Find
                 d = f"dagger-{nu}"
                 if c.has(s, d):
                     r = cmp(on, s, d, "expert")
-                    line = f"{s} D_{nu} {_g(stat(c.at(s, d)))}, L {_g(L)}: {r.text()}"
+                    dv = significant(stat(c.at(s, d)))
+                    line = f"{s} D_{nu} {dv}, L {significant(L)}: {r.text()}"
                     out.append(((r.outcome,), line))
         return out
 
@@ -208,8 +164,9 @@ def findings(table: pa.Table, hover_panels: set[str] | None = None) -> list[Find
             improves = cmp(on, s, "abbeel", "abbeel", None, 2)
             above = cmp(on, s, best, "abbeel")
             line = (
-                f"{s}: A first {_g(first)} -> final {_g(final)}, improves: {improves.text()}; "
-                f"best DAgger {best} {_g(stat(c.at(s, best)))} below A: {above.text()}"
+                f"{s}: A first {significant(first)} -> final {significant(final)}, "
+                f"improves: {improves.text()}; "
+                f"best DAgger {best} {significant(stat(c.at(s, best)))} below A: {above.text()}"
             )
             out.append(((improves.outcome, above.outcome), line))
         return out
@@ -227,7 +184,8 @@ def findings(table: pa.Table, hover_panels: set[str] | None = None) -> list[Find
             line = (
                 f"{s}: improvement from iteration 1 x{factor(stat, s):.3g} (small: above x1, at "
                 f"most x{SMALL_IMPROVEMENT:g}); "
-                f"PG {_g(stat(c.at(s, 'pg', 1)))} -> {_g(final)}, {final / L:.3g} x L"
+                f"PG {significant(stat(c.at(s, 'pg', 1)))} -> {significant(final)}, "
+                f"{final / L:.3g} x L"
             )
             out.append(((_ok(ok),), line))
         return out

@@ -15,13 +15,13 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from loopid.algorithms.expert import expert_gains
-from loopid.algorithms.helicopter_plant import helicopter_plant
+from loopid.algorithms.exploration import nu_expert, nu_trajectory
 from loopid.algorithms.loop import eval_noise, make_loop_program, seed_keys
 from loopid.algorithms.model_based import linear_agent
 from loopid.algorithms.plant import make_plant
 from loopid.control import dlqr_affine
-from loopid.exploration import nu_expert, nu_trajectory
+from loopid.experiments.families.helicopter.expert import expert_gains
+from loopid.experiments.families.helicopter.plant import helicopter_plant
 from loopid.learners import ftrl_least_squares
 from loopid.models.linear_offset import LinearOffsetModel, to_matrices
 from loopid.systems import helicopter

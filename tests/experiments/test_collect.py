@@ -15,9 +15,9 @@ import pytest
 from scipy import stats
 
 from loopid.algorithms.collect import geometric_steps, policy_samples
-from loopid.algorithms.expert import expert_gains
-from loopid.algorithms.helicopter_plant import helicopter_plant
 from loopid.algorithms.plant import make_plant
+from loopid.experiments.families.helicopter.expert import expert_gains
+from loopid.experiments.families.helicopter.plant import helicopter_plant
 from loopid.systems.linear import linear_dynamics, linear_task
 from loopid.systems.tasks import make_task
 
