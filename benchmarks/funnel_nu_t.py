@@ -6,8 +6,8 @@ target's states with the hover-trim controls) or ``nominal`` (the expert's plann
 flight, its states and actions). For each centre it measures:
 
 1. D_t's learning on the funnel, per iteration and seed: the loop program of the scenario
-   (:func:`loopid.algorithms.loop.make_loop_program` on the funnel's plant and agent) with the
-   three centres' ν_t samplers as three methods of one lane set (DAgger, p_n = ½, ν index 0, 1,
+   (:func:`loopid.algorithms.loop_program.make_loop_program` on the funnel's plant and agent) with
+   the three centres' ν_t samplers as three methods of one lane set (DAgger, p_n = ½, ν index 0, 1,
    2), driven one ``step`` at a time. Before iteration n's step the policy it flies, π_{n−1}
    (the carry's ``K``), is flown again in that iteration's training rollout (the same keys:
    :func:`loopid.algorithms.keys.iteration_keys`, ``plant.rollout``, which restarts from the

@@ -17,9 +17,9 @@ import loopid  # noqa: F401  (float64)
 from funnel_nu_t_fit import CIRCLES, centre_of  # benchmarks/funnel_nu_t_fit.py
 from loopid.algorithms.exploration import nu_trajectory
 from loopid.algorithms.keys import iteration_keys, seed_keys
-from loopid.algorithms.loop import make_loop_program, run_learning
-from loopid.algorithms.loop_program import lane_noise
-from loopid.algorithms.plant import draw, flatten
+from loopid.algorithms.loop import run_learning
+from loopid.algorithms.loop_program import lane_noise, make_loop_program
+from loopid.algorithms.transitions import draw, flatten
 from loopid.experiments.families.helicopter import assembly
 from loopid.experiments.families.helicopter.methods import policy_fractions
 from loopid.experiments.families.helicopter.scenario import SCENARIOS

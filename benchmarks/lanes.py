@@ -29,7 +29,8 @@ import numpy as np
 
 import loopid
 from loopid.algorithms.exploration import NU_KINDS
-from loopid.algorithms.loop import iteration_block, run_lanes, run_learning, seed_keys
+from loopid.algorithms.keys import seed_keys
+from loopid.algorithms.loop import iteration_block, run_lanes, run_learning
 from loopid.experiments.backend import ACCELERATOR_BLOCK
 from loopid.experiments.families import helicopter as H
 from loopid.experiments.families.helicopter import assembly

@@ -23,7 +23,8 @@ import scipy.linalg
 
 import loopid  # noqa: F401  (float64)
 from loopid.algorithms.exploration import make_nu
-from loopid.algorithms.loop import make_loop_program, run_learning
+from loopid.algorithms.loop import run_learning
+from loopid.algorithms.loop_program import make_loop_program
 from loopid.algorithms.model_based import linear_agent
 from loopid.experiments.families.helicopter import methods as M
 from loopid.experiments.families.helicopter.expert import expert_gains

@@ -252,9 +252,11 @@ def print_plans(title, rows, iterations):
 def mpc_plant_rows(repeats, quick):
     """[(label, seconds, compile seconds, mean test cost)] of the hover's MPC test flights
     (module docstring, (c)); the first row flies the expert's gains."""
-    from loopid.algorithms.loop import eval_noise, seed_keys
+    from loopid.algorithms.keys import seed_keys
+    from loopid.algorithms.loop_program import eval_noise
     from loopid.algorithms.mpc_plant import mpc_plant
-    from loopid.algorithms.plant import flatten, make_plant
+    from loopid.algorithms.plant import make_plant
+    from loopid.algorithms.transitions import flatten
     from loopid.experiments.families.helicopter.expert import expert_gains
     from loopid.models.linear_offset import hover_nominal
 

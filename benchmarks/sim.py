@@ -181,7 +181,8 @@ def main():
 
 
 def bench_test_evaluation():
-    from loopid.algorithms.loop import eval_noise, seed_keys
+    from loopid.algorithms.keys import seed_keys
+    from loopid.algorithms.loop_program import eval_noise
     from loopid.experiments.families.helicopter.expert import expert_gains
     from loopid.experiments.families.helicopter.plant import helicopter_plant
     from loopid.systems.tasks import make_task

@@ -20,7 +20,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from loopid.algorithms.loop import iteration_key, seed_keys
+from loopid.algorithms.keys import iteration_key, seed_keys
 from loopid.algorithms.policy_gradient import budget, init_state, make_pg_step, pg_base
 from loopid.experiments.families.helicopter import agent as agent_of
 from loopid.experiments.families.helicopter import setup

@@ -15,7 +15,9 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from loopid.algorithms.loop import Agent, SolverInfo, eval_noise, seed_keys
+from loopid.algorithms.contracts import Agent, SolverInfo
+from loopid.algorithms.keys import seed_keys
+from loopid.algorithms.loop_program import eval_noise
 from loopid.algorithms.plant import Plant, make_plant
 from loopid.algorithms.policy_gradient import (
     budget,

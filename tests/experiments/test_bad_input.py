@@ -9,8 +9,11 @@ import pytest
 
 from loopid.algorithms.collect import policy_samples
 from loopid.algorithms.exploration import make_nu, nu_expert, nu_trajectory
-from loopid.algorithms.loop import make_loop_program, run_fixed_policy, run_learning, seed_keys
-from loopid.algorithms.plant import draw, make_plant
+from loopid.algorithms.keys import seed_keys
+from loopid.algorithms.loop import run_fixed_policy, run_learning
+from loopid.algorithms.loop_program import make_loop_program
+from loopid.algorithms.plant import make_plant
+from loopid.algorithms.transitions import draw
 from loopid.experiments.families.helicopter import methods as M
 from loopid.experiments.families.helicopter import run
 from loopid.experiments.families.helicopter.scenario import scenario

@@ -7,7 +7,8 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from loopid.algorithms.loop import EVALUATE, seed_keys, trajectory_mean
+from loopid.algorithms.keys import EVALUATE, seed_keys
+from loopid.algorithms.loop_program import trajectory_mean
 from loopid.algorithms.plant import quadratic_form
 from loopid.experiments.families import helicopter as family
 from loopid.experiments.families.helicopter import assembly

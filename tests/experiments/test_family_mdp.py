@@ -9,7 +9,8 @@ import pyarrow as pa
 import pytest
 
 from loopid.algorithms.collect import policy_samples
-from loopid.algorithms.loop import make_loop_program, run_learning
+from loopid.algorithms.loop import run_learning
+from loopid.algorithms.loop_program import make_loop_program
 from loopid.control.value_iteration import occupancy
 from loopid.experiments.families.helicopter.methods import policy_fractions
 from loopid.experiments.families.mdp import MDP_SCENARIOS, mdp_figure, mdp_setup, run_mdp

@@ -13,7 +13,8 @@ import numpy as np
 import pytest
 
 from conftest import tree_allclose
-from loopid.algorithms.loop import eval_noise, seed_keys
+from loopid.algorithms.keys import seed_keys
+from loopid.algorithms.loop_program import eval_noise
 from loopid.experiments.families.helicopter import agent as agent_of
 from loopid.experiments.families.helicopter import run, setup
 from loopid.experiments.families.helicopter.scenario import scenario

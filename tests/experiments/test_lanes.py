@@ -11,15 +11,9 @@ import pytest
 
 from conftest import tree_allclose
 from loopid.algorithms import loop
-from loopid.algorithms.loop import (
-    EvalNoise,
-    iteration_block,
-    lane_noise,
-    make_loop_program,
-    program_memory,
-    run_lanes,
-    run_learning,
-)
+from loopid.algorithms.contracts import EvalNoise
+from loopid.algorithms.loop import iteration_block, program_memory, run_lanes, run_learning
+from loopid.algorithms.loop_program import lane_noise, make_loop_program
 from loopid.experiments.families.helicopter.methods import policy_fractions
 from loopid.experiments.families.mdp.agent import (
     counts_model,

@@ -16,7 +16,9 @@ import pytest
 
 from conftest import tree_allclose
 from loopid.algorithms.exploration import nu_trajectory
-from loopid.algorithms.loop import eval_noise, make_loop_program, run_learning, seed_keys
+from loopid.algorithms.keys import seed_keys
+from loopid.algorithms.loop import run_learning
+from loopid.algorithms.loop_program import eval_noise, make_loop_program
 from loopid.algorithms.model_based import linear_agent
 from loopid.algorithms.plant import make_plant
 from loopid.control import dlqr_affine

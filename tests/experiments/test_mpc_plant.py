@@ -10,10 +10,12 @@ import numpy as np
 import pytest
 
 from loopid import control
-from loopid.algorithms.loop import eval_noise, seed_keys
+from loopid.algorithms.keys import seed_keys
+from loopid.algorithms.loop_program import eval_noise
 from loopid.algorithms.mpc_plant import mpc_plant
 from loopid.algorithms.planning_agent import feature_model
-from loopid.algorithms.plant import flatten, quadratic_form
+from loopid.algorithms.plant import quadratic_form
+from loopid.algorithms.transitions import flatten
 from loopid.experiments.families.helicopter.expert import expert_gains
 from loopid.experiments.families.helicopter.plant import helicopter_plant
 from loopid.learners import ftrl_least_squares

@@ -10,7 +10,8 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from loopid.algorithms.loop import eval_noise, seed_keys
+from loopid.algorithms.keys import seed_keys
+from loopid.algorithms.loop_program import eval_noise
 from loopid.algorithms.plant import make_plant, noise_columns, ordered_sum
 from loopid.experiments.families.helicopter.expert import expert_gains
 from loopid.experiments.families.helicopter.plant import helicopter_plant

@@ -19,7 +19,8 @@ import numpy as np
 import pytest
 import scipy.linalg
 
-from loopid.algorithms.loop import noise_program, seed_keys
+from loopid.algorithms.keys import seed_keys
+from loopid.algorithms.loop_program import noise_program
 from loopid.experiments.execute import run_cells
 from loopid.experiments.families import families, family_named, family_of
 from loopid.experiments.results import read_table

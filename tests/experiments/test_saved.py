@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 import loopid
-from loopid.algorithms.loop import seed_keys
+from loopid.algorithms.keys import seed_keys
 from loopid.experiments import artifacts
 from loopid.experiments.execute import run_cells
 from loopid.experiments.families import gym, helicopter, mdp

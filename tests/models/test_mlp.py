@@ -154,8 +154,8 @@ def test_bad_settings_raise_one_line(settings, word):
 def test_a_model_restored_from_its_saved_arrays_predicts_as_the_learned_one(rng, kind):
     """``ModelClass.restore(saved(state))`` (what ``loopid evaluate`` re-plans on for a run that
     flew MPC) gives the learned model's dynamics exactly, after two updates that moved it."""
+    from loopid.algorithms.contracts import Transitions
     from loopid.algorithms.planning_agent import feature_model, mlp_model
-    from loopid.algorithms.plant import Transitions
     from loopid.learners import ftrl_least_squares
     from loopid.models.feature_model import polynomial
 

@@ -3,9 +3,9 @@ and gains (to 1e-12).
 
 The run is the gym family's ``run`` (what ``loopid run gym`` executes for each cell), on
 Pendulum-v1. Its training rollouts are recorded as they are made; each iteration's batch is the
-loop's own draws and mix of them (:func:`loopid.algorithms.plant.draw`,
-:func:`loopid.algorithms.plant.select`, with the iteration's keys), written out as a round's file
-with ``source`` from the mix. Feeding those files to ``loopid.rounds`` one by one must end on
+loop's own draws and mix of them (:func:`loopid.algorithms.transitions.draw`,
+:func:`loopid.algorithms.transitions.select`, with the iteration's keys), written out as a round's
+file with ``source`` from the mix. Feeding those files to ``loopid.rounds`` one by one must end on
 the run's final model ``W`` and gains ``K``.
 """
 
@@ -18,7 +18,7 @@ import pyarrow.parquet as pq
 from loopid import rounds
 from loopid.algorithms import gym_loop
 from loopid.algorithms.keys import iteration_keys, seed_keys
-from loopid.algorithms.plant import draw, select
+from loopid.algorithms.transitions import draw, select
 from loopid.experiments.families.gym import setup
 from loopid.experiments.families.gym.scenario import GymScenario
 from loopid.rounds.api import controller_arrays

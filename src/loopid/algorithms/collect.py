@@ -20,7 +20,9 @@ import math
 import jax
 import jax.numpy as jnp
 
-from loopid.algorithms.plant import Plant, Transitions, draw, flatten
+from loopid.algorithms.contracts import Transitions
+from loopid.algorithms.plant import Plant
+from loopid.algorithms.transitions import draw, flatten
 
 SAMPLING_MODES = ("trajectory", "geometric")
 

@@ -1,6 +1,8 @@
 """The contracts between the engine's parts: what an agent is, what an iteration reports, what a
 cell returns.
 
+- :class:`Transitions`: a fixed-shape batch of recorded transitions; :class:`LoopPlant`: what
+  Algorithm 1 needs of a real system.
 - :class:`Agent`: model class + online learner + optimal-control solver, as pure functions
   (Algorithm 1's "fit" and "solve"); built by a family from its config.
 - :class:`SolverInfo`: the solve's status (converged, closed-loop spectral radius).
@@ -19,12 +21,57 @@ They are NamedTuples of arrays and pure functions, so they pass through ``jit`` 
 
 from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Any, NamedTuple
+from typing import Any, NamedTuple, Protocol, runtime_checkable
 
 import jax
 import numpy as np
 
-from loopid.algorithms.plant import Transitions
+
+class Transitions(NamedTuple):
+    """A fixed-shape batch of recorded transitions ``(x_t, Δu_t, x_{t+1})``; leading axis ``[b]``.
+
+    ``x`` is the raw state ``[n_x]`` (needed to query the system again), ``dx``/``dx_next`` the
+    error coordinates relative to ``target[t]``/``target[t+1]``, ``t`` the target time index
+    (int32), ``mask`` which rows hold real data. Masked rows are zero-filled, never NaN.
+    """
+
+    x: jax.Array
+    dx: jax.Array
+    du: jax.Array
+    dx_next: jax.Array
+    t: jax.Array
+    mask: jax.Array
+
+
+@runtime_checkable
+class LoopPlant(Protocol):
+    """What Algorithm 1 (:mod:`loopid.algorithms.loop_program`) needs of a real system: the
+    contract that :class:`Plant` (JAX systems),
+    :class:`loopid.experiments.families.mdp.agent.MDPPlant` (finite MDPs) and
+    :func:`loopid.algorithms.mpc_plant.mpc_plant` implement. ``policy`` is what the plant flies:
+    gains ``K [horizon, m, n]`` for :class:`Plant`, action probabilities ``[states, actions]`` for
+    ``MDPPlant``, a model's parameters (any pytree) that MPC re-plans on for ``mpc_plant``. Shapes:
+    ``S`` seeds, ``n_test`` test runs.
+
+    - ``horizon``: steps of one training rollout and of one test trajectory.
+    - ``rollout(policy, key) -> transitions [horizon]``: one training rollout (a NamedTuple of
+      arrays with a leading ``[horizon]`` axis and a boolean ``mask``).
+    - ``eval_noise(key, n_test) -> [n_test, ...]``: the noise of ``n_test`` test runs.
+    - ``eval_one(policy, noise) -> (cost, diverged)``: one test run (scalars).
+    - ``eval_seeds(policies, noise) -> (costs [S, n_test], diverged [S, n_test])``: every
+      seed's test runs (``policies``: a leading seed axis); ``noise`` in the column layout of
+      :func:`noise_columns`.
+    """
+
+    horizon: int
+
+    def rollout(self, policy, key, *args): ...
+
+    def eval_noise(self, key, n_test: int): ...
+
+    def eval_one(self, policy, noise): ...
+
+    def eval_seeds(self, policies, noise): ...
 
 
 @dataclass(frozen=True)
@@ -129,6 +176,18 @@ class Trace(NamedTuple):
     samples: np.ndarray
     rows: Row
     final: dict | None = None
+
+    @classmethod
+    def from_rows(cls, seeds, samples: int, rows: list[Row], final: dict | None = None) -> "Trace":
+        """The trace of a cell's ``rows`` (one :class:`Row` per iteration, leaves ``[S]``), of
+        ``samples`` transitions per iteration: leaves stacked to ``[S, N]``, iteration n's
+        ``samples`` = ``(n − 1) · samples``, ``final``'s leaves as NumPy arrays."""
+        stacked = jax.tree_util.tree_map(
+            lambda *a: np.stack([np.asarray(x) for x in a], axis=1), *rows
+        )
+        iteration = np.arange(1, len(rows) + 1)
+        final = None if final is None else {k: np.asarray(v) for k, v in final.items()}
+        return cls(np.asarray(seeds), iteration, (iteration - 1) * samples, stacked, final)
 
 
 class LoopProgram(NamedTuple):

@@ -36,8 +36,9 @@ from typing import NamedTuple
 import jax
 import jax.numpy as jnp
 
-from loopid.algorithms.contracts import SharedSampler
-from loopid.algorithms.plant import Plant, Transitions, draw, flatten, make_plant
+from loopid.algorithms.contracts import SharedSampler, Transitions
+from loopid.algorithms.plant import Plant, make_plant
+from loopid.algorithms.transitions import draw, flatten
 
 NU_KINDS = ("t", "e", "en")
 

@@ -42,19 +42,20 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from loopid.algorithms.keys import HOST_EVALUATE, HOST_NU, HOST_POLICY, HOST_SELECT, HOST_TEST
-from loopid.algorithms.loop import (
-    Agent,
-    Row,
-    Trace,
-    _trace,
-    drive,
+from loopid.algorithms.contracts import Agent, Row, Trace, Transitions
+from loopid.algorithms.keys import (
+    HOST_EVALUATE,
+    HOST_NU,
+    HOST_POLICY,
+    HOST_SELECT,
+    HOST_TEST,
     iteration_keys,
-    learning_step,
     seed_keys,
 )
+from loopid.algorithms.loop import drive
+from loopid.algorithms.loop_program import learning_step
 from loopid.algorithms.model_based import linear_agent
-from loopid.algorithms.plant import Transitions, draw
+from loopid.algorithms.transitions import draw
 from loopid.learners import ftrl_least_squares
 from loopid.models.linear_offset import LinearOffsetModel
 from loopid.systems.from_gymnasium import GymSystem, ObservationCost, Rollouts, Slot
@@ -324,7 +325,7 @@ def run_learning_host(
         final["best_K"] = best[0]
     if agent.params is not None:
         final |= jax.vmap(agent.params)(carry.learner)
-    return _trace(seeds, samples, rows, final)
+    return Trace.from_rows(seeds, samples, rows, final)
 
 
 def _row(mean, median, div, loss_nu, loss_pol, online, pol_n, valid_n, info) -> Row:

@@ -10,9 +10,6 @@ iteration number and ``p_n`` are traced arguments), which gives progress and ear
 iteration. With ``block`` B > 1, :func:`run_lanes` instead runs up to B iterations per call
 (the largest divisor of N) as one ``lax.scan`` and fetches their rows once, so the host waits
 on the device once per block (the helicopter's lane sets do so on an accelerator).
-
-The program's parts and the loop's contracts and key streams are importable from here too
-(``__all__``).
 """
 
 from collections.abc import Callable, Sequence
@@ -24,32 +21,23 @@ import numpy as np
 
 from loopid.algorithms.contracts import (
     Agent,
-    Diagnostics,
     EvalNoise,
+    LoopPlant,
     LoopProgram,
     Row,
-    SolverInfo,
     Trace,
 )
 from loopid.algorithms.keys import (
-    EVALUATE,
-    IterationKeys,
-    iteration_key,
-    iteration_keys,
     seed_keys,
 )
 from loopid.algorithms.loop_program import (
-    TEST_POLICIES,
     eval_noise,
     first_iteration,
     lane_noise,
     lane_seed_keys,
-    learning_step,
     make_loop_program,
-    noise_program,
     trajectory_mean,
 )
-from loopid.algorithms.plant import LoopPlant
 
 
 def drive(
@@ -228,7 +216,7 @@ def run_lanes(
     rows, final = jax.device_get((rows, final))  # to NumPy once, then each method's a view
     S = len(keys)
     return [
-        _trace(
+        Trace.from_rows(
             seeds,
             samples,
             [_lanes(row, m, S) for row in rows],
@@ -309,7 +297,7 @@ def run_fixed_policy(
     row = test(noise)
     _, rows = drive(lambda: (None, row), lambda carry, n: (carry, row), iterations, progress)
     S = noise.shape[2]
-    return _trace(seeds, samples, rows, {"K": jnp.broadcast_to(K, (S, *K.shape))})
+    return Trace.from_rows(seeds, samples, rows, {"K": jnp.broadcast_to(K, (S, *K.shape))})
 
 
 #: The fewest seeds a compiled cell computes at once. XLA's CPU backend lowers a batch of one or
@@ -349,18 +337,7 @@ def cut_seeds(out, seeds):
     return out._replace(seeds=seeds, rows=rows, final=final)
 
 
-def _trace(seeds, samples: int, rows: list[Row], final: dict | None = None) -> Trace:
-    stacked = jax.tree_util.tree_map(lambda *a: np.stack([np.asarray(x) for x in a], axis=1), *rows)
-    n = len(rows)
-    iteration = np.arange(1, n + 1)
-    final = None if final is None else {k: np.asarray(v) for k, v in final.items()}
-    return Trace(np.asarray(seeds), iteration, (iteration - 1) * samples, stacked, final)
-
-
-__all__ = [  # the contracts and key streams, importable from here as before
-    "EVALUATE", "TEST_POLICIES", "Agent", "Diagnostics", "EvalNoise", "IterationKeys",
-    "LoopProgram", "Row", "SolverInfo", "Trace", "at_least", "cut_seeds", "drive", "eval_noise",
-    "iteration_block", "iteration_key", "iteration_keys", "lane_noise", "learning_step",
-    "make_loop_program", "noise_program", "pad_seeds", "program_memory", "run_fixed_policy",
-    "run_lanes", "run_learning", "seed_keys", "trajectory_mean",
+__all__ = [
+    "MIN_SEEDS", "at_least", "cut_seeds", "drive", "iteration_block", "pad_seeds",
+    "program_bytes", "program_memory", "run_fixed_policy", "run_lanes", "run_learning",
 ]  # fmt: skip

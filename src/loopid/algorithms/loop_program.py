@@ -45,12 +45,15 @@ from loopid.algorithms.contracts import (
     Agent,
     Diagnostics,
     EvalNoise,
+    LoopPlant,
     LoopProgram,
     Row,
     SharedSampler,
+    Transitions,
 )
 from loopid.algorithms.keys import SELECT, TEST, iteration_keys, stream_key
-from loopid.algorithms.plant import LoopPlant, Transitions, noise_columns, ordered_sum, select
+from loopid.algorithms.plant import noise_columns, ordered_sum
+from loopid.algorithms.transitions import select
 
 TEST_POLICIES = ("last", "best", "mixture")
 

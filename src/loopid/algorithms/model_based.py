@@ -18,8 +18,7 @@ from typing import Any, NamedTuple
 import jax
 import jax.numpy as jnp
 
-from loopid.algorithms.loop import Agent, SolverInfo
-from loopid.algorithms.plant import Transitions
+from loopid.algorithms.contracts import Agent, SolverInfo, Transitions
 from loopid.control.lqr import _dlqr_affine
 from loopid.control.tvlqr import tvlqr
 from loopid.learners import Learner, indexed, touched_weights

@@ -40,7 +40,9 @@ import jax
 import jax.numpy as jnp
 
 from loopid.algorithms.closed_loop import DelayedLoop
-from loopid.algorithms.plant import Plant, Transitions, clean, quadratic_form
+from loopid.algorithms.contracts import Transitions
+from loopid.algorithms.plant import Plant, quadratic_form
+from loopid.algorithms.transitions import clean
 from loopid.control.mpc import Replanner, empty_plan, local_action, replan
 
 

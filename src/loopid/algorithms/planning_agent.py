@@ -27,8 +27,7 @@ import jax
 import jax.numpy as jnp
 
 from loopid import control
-from loopid.algorithms.loop import Agent, SolverInfo
-from loopid.algorithms.plant import Transitions
+from loopid.algorithms.contracts import Agent, SolverInfo, Transitions
 from loopid.learners import Learner
 from loopid.models import feature_model as F
 from loopid.models.linear_offset import LinearOffsetModel, residual_targets

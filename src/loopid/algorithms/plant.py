@@ -46,109 +46,17 @@ the applied ones under ``latency``; they differ by the last d commands, ~1e-12 o
 """
 
 from collections.abc import Callable
-from typing import NamedTuple, Protocol, runtime_checkable
+from typing import NamedTuple
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 
 from loopid.algorithms.closed_loop import DelayedLoop, check_delay_mode
+from loopid.algorithms.contracts import Transitions
+from loopid.algorithms.transitions import clean
 from loopid.systems.base import Dynamics
 from loopid.systems.tasks import Task
-
-
-class Transitions(NamedTuple):
-    """A fixed-shape batch of recorded transitions ``(x_t, Δu_t, x_{t+1})``; leading axis ``[b]``.
-
-    ``x`` is the raw state ``[n_x]`` (needed to query the system again), ``dx``/``dx_next`` the
-    error coordinates relative to ``target[t]``/``target[t+1]``, ``t`` the target time index
-    (int32), ``mask`` which rows hold real data. Masked rows are zero-filled, never NaN.
-    """
-
-    x: jax.Array
-    dx: jax.Array
-    du: jax.Array
-    dx_next: jax.Array
-    t: jax.Array
-    mask: jax.Array
-
-
-def clean(tr: Transitions) -> Transitions:
-    """Invalidate rows with non-finite numbers and zero-fill every invalid row."""
-    finite = (
-        jnp.all(jnp.isfinite(tr.x), axis=-1)
-        & jnp.all(jnp.isfinite(tr.dx), axis=-1)
-        & jnp.all(jnp.isfinite(tr.du), axis=-1)
-        & jnp.all(jnp.isfinite(tr.dx_next), axis=-1)
-    )
-    mask = tr.mask & finite
-
-    def zero(a):
-        return jnp.where(mask.reshape(mask.shape + (1,) * (a.ndim - 1)), a, jnp.zeros_like(a))
-
-    return Transitions(zero(tr.x), zero(tr.dx), zero(tr.du), zero(tr.dx_next), tr.t, mask)
-
-
-def select(take_first: jax.Array, a: Transitions, b: Transitions) -> Transitions:
-    """Row-wise choice: row i of ``a`` where ``take_first[i]``, else row i of ``b``.
-
-    Any NamedTuple of arrays with a leading batch axis works (the result has ``a``'s type), so
-    other systems' transition records (e.g. finite-MDP ``(s, a, s_next, t, mask)``) share it."""
-
-    def pick(u, v):
-        return jnp.where(take_first.reshape(take_first.shape + (1,) * (u.ndim - 1)), u, v)
-
-    return type(a)(*(pick(u, v) for u, v in zip(a, b, strict=True)))
-
-
-def draw(tr: Transitions, key: jax.Array, n: int) -> Transitions:
-    """Draw ``n`` rows uniformly without replacement among the valid rows of ``tr``.
-
-    Gumbel top-k over ``log(mask)``: fixed shapes, and when fewer than ``n`` rows are valid the
-    surplus draws are invalid rows (masked), never duplicates.
-    """
-    b = tr.mask.shape[0]
-    if n > b:
-        raise ValueError(f"cannot draw n={n} rows from a batch of {b}")
-    scores = jax.random.gumbel(key, (b,)) + jnp.where(tr.mask, 0.0, -jnp.inf)
-    _, idx = jax.lax.top_k(scores, n)
-    return jax.tree_util.tree_map(lambda a: a[idx], tr)
-
-
-def flatten(tr: Transitions) -> Transitions:
-    """Merge the two leading axes ``[R, T]`` of stacked rollouts into one ``[R·T]``."""
-    return jax.tree_util.tree_map(lambda a: a.reshape((-1, *a.shape[2:])), tr)
-
-
-@runtime_checkable
-class LoopPlant(Protocol):
-    """What Algorithm 1 (:mod:`loopid.algorithms.loop_program`) needs of a real system: the
-    contract that :class:`Plant` (JAX systems),
-    :class:`loopid.experiments.families.mdp.agent.MDPPlant` (finite MDPs) and
-    :func:`loopid.algorithms.mpc_plant.mpc_plant` implement. ``policy`` is what the plant flies:
-    gains ``K [horizon, m, n]`` for :class:`Plant`, action probabilities ``[states, actions]`` for
-    ``MDPPlant``, a model's parameters (any pytree) that MPC re-plans on for ``mpc_plant``. Shapes:
-    ``S`` seeds, ``n_test`` test runs.
-
-    - ``horizon``: steps of one training rollout and of one test trajectory.
-    - ``rollout(policy, key) -> transitions [horizon]``: one training rollout (a NamedTuple of
-      arrays with a leading ``[horizon]`` axis and a boolean ``mask``).
-    - ``eval_noise(key, n_test) -> [n_test, ...]``: the noise of ``n_test`` test runs.
-    - ``eval_one(policy, noise) -> (cost, diverged)``: one test run (scalars).
-    - ``eval_seeds(policies, noise) -> (costs [S, n_test], diverged [S, n_test])``: every
-      seed's test runs (``policies``: a leading seed axis); ``noise`` in the column layout of
-      :func:`noise_columns`.
-    """
-
-    horizon: int
-
-    def rollout(self, policy, key, *args): ...
-
-    def eval_noise(self, key, n_test: int): ...
-
-    def eval_one(self, policy, noise): ...
-
-    def eval_seeds(self, policies, noise): ...
 
 
 class Plant(NamedTuple):

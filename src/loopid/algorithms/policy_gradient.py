@@ -134,17 +134,10 @@ import jax.numpy as jnp
 import numpy as np
 
 from loopid.algorithms.closed_loop import DelayedLoop
-from loopid.algorithms.loop import (
-    Agent,
-    Row,
-    Trace,
-    _trace,
-    drive,
-    eval_noise,
-    iteration_key,
-    seed_keys,
-    trajectory_mean,
-)
+from loopid.algorithms.contracts import Agent, Row, Trace
+from loopid.algorithms.keys import iteration_key, seed_keys
+from loopid.algorithms.loop import drive
+from loopid.algorithms.loop_program import eval_noise, trajectory_mean
 from loopid.algorithms.plant import (
     Plant,
     column_ops,
@@ -480,4 +473,5 @@ def run_policy_gradient(
         iterations,
         progress,
     )
-    return _trace(np.asarray(seeds), samples, rows, {"K": base[None] + state.theta[:, None]})
+    final = {"K": base[None] + state.theta[:, None]}
+    return Trace.from_rows(np.asarray(seeds), samples, rows, final)

@@ -14,7 +14,7 @@ from typing import Any, NamedTuple
 import numpy as np
 import pyarrow as pa
 
-from loopid.algorithms.loop import Row
+from loopid.algorithms.contracts import Row
 from loopid.experiments.families import family_of
 from loopid.experiments.results import trace_table, with_metadata
 from loopid.experiments.tasks import method_names

@@ -18,7 +18,7 @@ import numpy as np
 import pyarrow as pa
 import pyarrow.parquet as pq
 
-from loopid.algorithms.loop import Row, Trace
+from loopid.algorithms.contracts import Row, Trace
 
 SCHEMA = pa.schema(
     [

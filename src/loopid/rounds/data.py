@@ -25,7 +25,7 @@ import pyarrow as pa
 import pyarrow.csv as pacsv
 import pyarrow.parquet as pq
 
-from loopid.algorithms.plant import Transitions
+from loopid.algorithms.contracts import Transitions
 from loopid.rounds.config import RoundsConfig
 
 SOURCES = ("nu", "policy")
@@ -131,7 +131,7 @@ def read_round(path, config: RoundsConfig) -> RoundData:
 
 def transitions(data: RoundData, config: RoundsConfig) -> Transitions:
     """The rows in the agent's coordinates (``Δx = [o − o*; 1]``, ``Δu = a − a_op``), all valid:
-    the :class:`~loopid.algorithms.plant.Transitions` a learner updates on."""
+    the :class:`~loopid.algorithms.contracts.Transitions` a learner updates on."""
     target = np.asarray(config.target, np.float64)
     ones = np.ones((data.x.shape[0], 1))
     return Transitions(

@@ -22,7 +22,7 @@ from typing import Any, ClassVar
 
 import pyarrow as pa
 
-from loopid.algorithms.loop import Row, Trace
+from loopid.algorithms.contracts import Row, Trace
 
 #: ``progress(n, row)`` after iteration n of a cell.
 Progress = Callable[[int, Row], None]

@@ -17,8 +17,8 @@ from typing import Any, NamedTuple
 
 import numpy as np
 
+from loopid.algorithms.contracts import Trace
 from loopid.algorithms.gym_loop import Exploration, run_learning_host
-from loopid.algorithms.loop import Trace
 from loopid.experiments.config import seed_list
 from loopid.experiments.families.base import Progress
 from loopid.experiments.families.gym.agent import (

@@ -16,8 +16,10 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from loopid.algorithms.contracts import Agent, LoopProgram
 from loopid.algorithms.exploration import Centre, make_nus, planned_flight
-from loopid.algorithms.loop import Agent, LoopProgram, make_loop_program, seed_keys
+from loopid.algorithms.keys import seed_keys
+from loopid.algorithms.loop_program import make_loop_program
 from loopid.algorithms.plant import Plant
 from loopid.experiments import model_planner
 from loopid.experiments.families.helicopter import plant as core

@@ -3,9 +3,9 @@ learning methods as one lane set (:func:`run_lanes`), and their programs' memory
 
 import numpy as np
 
+from loopid.algorithms.contracts import Trace
 from loopid.algorithms.exploration import NU_KINDS
 from loopid.algorithms.loop import (
-    Trace,
     cut_seeds,
     iteration_block,
     pad_seeds,

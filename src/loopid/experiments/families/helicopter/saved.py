@@ -6,12 +6,8 @@ from pathlib import Path
 import jax
 import numpy as np
 
-from loopid.algorithms.keys import TEST, stream_key
-from loopid.algorithms.loop import (
-    EVALUATE,
-    noise_program,
-    seed_keys,
-)
+from loopid.algorithms.keys import EVALUATE, TEST, seed_keys, stream_key
+from loopid.algorithms.loop_program import noise_program
 from loopid.experiments import model_planner
 from loopid.experiments.artifacts import tested_gains
 from loopid.experiments.families.helicopter import methods as M

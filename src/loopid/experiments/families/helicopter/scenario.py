@@ -17,7 +17,7 @@ from dataclasses import dataclass
 from importlib import resources
 
 from loopid.algorithms.collect import SAMPLING_MODES
-from loopid.algorithms.loop import TEST_POLICIES
+from loopid.algorithms.loop_program import TEST_POLICIES
 from loopid.algorithms.plant import check_delay_reading
 from loopid.algorithms.policy_gradient import SAMPLES_MODES as PG_SAMPLES
 from loopid.algorithms.policy_gradient import UPDATES as PG_UPDATES

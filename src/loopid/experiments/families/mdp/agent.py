@@ -25,7 +25,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from loopid.algorithms.loop import Agent, Diagnostics, SolverInfo
+from loopid.algorithms.contracts import Agent, Diagnostics, SolverInfo
 from loopid.control.value_iteration import evaluate, occupancy, policy_iteration, value_iteration
 from loopid.experiments.families.mdp import theory
 from loopid.learners.base import Learner
@@ -81,7 +81,7 @@ def _categorical(p: jax.Array, u: jax.Array) -> jax.Array:
 
 class MDPPlant(NamedTuple):
     """The real finite MDP as the loop's plant (module doc); implements
-    :class:`loopid.algorithms.plant.LoopPlant`."""
+    :class:`loopid.algorithms.contracts.LoopPlant`."""
 
     mdp: FiniteMDP
     horizon: int

@@ -12,14 +12,9 @@ from typing import NamedTuple
 import jax
 import numpy as np
 
-from loopid.algorithms.loop import (
-    LoopProgram,
-    Row,
-    Trace,
-    at_least,
-    make_loop_program,
-    run_learning,
-)
+from loopid.algorithms.contracts import LoopProgram, Row, Trace
+from loopid.algorithms.loop import at_least, run_learning
+from loopid.algorithms.loop_program import make_loop_program
 from loopid.experiments.config import (
     check_choice,
     check_int,
