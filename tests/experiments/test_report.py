@@ -6,7 +6,7 @@ import pyarrow as pa
 import pyarrow.parquet as pq
 import pytest
 
-from loopid.experiments import report
+from loopid.experiments import curves, report
 from loopid.experiments.families.helicopter import figure2 as plots
 from loopid.experiments.families.helicopter import findings
 from loopid.experiments.results import SCHEMA, read_table
@@ -93,7 +93,7 @@ def test_curves_are_means_and_standard_errors_over_seeds():
     rng = np.random.default_rng(0)
     c = rng.uniform(1.0, 100.0, (7, 5))
     table = table_of({("hover", "dagger-t"): c}, samples=30)
-    x, mean, se = plots.curves(table, "hover", "dagger-t")
+    x, mean, se = curves.curves(table, "hover", "dagger-t")
     np.testing.assert_array_equal(x, [0, 30, 60, 90, 120])
     np.testing.assert_allclose(mean, c.mean(axis=0), rtol=1e-14)
     np.testing.assert_allclose(se, c.std(axis=0, ddof=1) / np.sqrt(7), rtol=1e-12)
