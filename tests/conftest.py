@@ -40,6 +40,7 @@ SLOWEST_FILES = (
     "test_nonlinear.py",
     "test_family_gym.py",
     "test_saved.py",
+    "test_family_package.py",  # a family installed with its entry point: workers and Ray
 )
 
 
