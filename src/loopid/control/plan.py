@@ -51,7 +51,7 @@ import numpy as np
 from jax import Array
 
 from loopid.control._checks import check_finite, shape_of
-from loopid.control.ilqr import DEFAULT_ALPHAS, ILQRSolution, _ilqr, check_settings
+from loopid.control.ilqr import DEFAULT_ALPHAS, ILQRSolution, check_settings, ilqr_core
 
 __all__ = [
     "MPCRollout",
@@ -219,7 +219,7 @@ def _plan(dynamics, cost, iterations, params, x0, U0, K0, t0, s: _Settings) -> I
     """Jittable core: iLQR on ``dynamics(params, ·)`` with the clock started at ``t0``."""
     dyn = lambda x, u, t: dynamics(params, x, u, t0 + t)  # noqa: E731
     stage = lambda x, u, t: cost(x, u, t0 + t)  # noqa: E731
-    return _ilqr(dyn, stage, x0, U0, K0, s.alphas, iterations, s.tol, s.atol, *s[3:])
+    return ilqr_core(dyn, stage, x0, U0, K0, s.alphas, iterations, s.tol, s.atol, *s[3:])
 
 
 def _best_plan(model, cost, iterations, params, x, U_init, K_init, t0, s, U_alt):
