@@ -34,7 +34,7 @@ from linear_gain_flights import (  # benchmarks/linear_gain_flights.py
     visited,
 )
 from loopid.algorithms.helicopter_plant import helicopter_plant
-from loopid.control.lqr import dlqr_affine
+from loopid.control.lqr_affine import dlqr_affine
 from loopid.systems import helicopter
 from loopid.systems.tasks import make_task
 

@@ -26,7 +26,8 @@ never NaN.
 """
 
 from loopid.control.ilqr import ILQRSolution, Quadratization, ilqr, quadratize, trajectory_cost
-from loopid.control.lqr import LQRSolution, dlqr, dlqr_affine
+from loopid.control.lqr import LQRSolution, dlqr
+from loopid.control.lqr_affine import dlqr_affine
 from loopid.control.mpc import (
     MPCController,
     MPCRollout,

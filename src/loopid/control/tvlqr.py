@@ -34,7 +34,7 @@ import jax.numpy as jnp
 from jax import Array
 
 from loopid.control._checks import check_finite, check_psd, check_shape, shape_of
-from loopid.control.lqr import psd_solve
+from loopid.control.linalg import psd_solve
 
 __all__ = ["TVLQRSolution", "tvlqr"]
 
