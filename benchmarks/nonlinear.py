@@ -66,8 +66,9 @@ from loopid.models import feature_model as F
 from loopid.models.linear_offset import LinearOffsetModel
 from loopid.systems import helicopter as h
 from loopid.systems import pendulum
-from loopid.systems.from_gymnasium import GymSystem, Slot
+from loopid.systems.from_gymnasium import GymSystem
 from loopid.systems.funnel_nominal import funnel_nominal
+from loopid.systems.gym_slots import Slot
 from loopid.systems.tasks import make_task
 
 PUSH = jnp.array([[2.0], [-2.0]])  # the swing-up's alternative initial actions (±u_max)
