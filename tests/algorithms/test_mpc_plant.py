@@ -17,7 +17,7 @@ from loopid.algorithms.mpc_plant import mpc_plant
 from loopid.algorithms.planning_agent import feature_model
 from loopid.algorithms.plant import flatten, quadratic_form
 from loopid.learners import ftrl_least_squares
-from loopid.models.feature_model import polynomial
+from loopid.models.feature_maps import polynomial
 from loopid.models.linear_offset import hover_nominal
 from loopid.systems import helicopter
 from loopid.systems.tasks import make_task
