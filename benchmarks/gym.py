@@ -15,7 +15,8 @@ import gymnasium
 import numpy as np
 
 import loopid  # noqa: F401
-from loopid.systems.from_gymnasium import GymSystem, Slot
+from loopid.systems.from_gymnasium import GymSystem
+from loopid.systems.gym_slots import Slot
 
 OPTIONS = {"x_init": 0.3, "y_init": 0.5}
 K = np.array([[3.0, 0.5]])

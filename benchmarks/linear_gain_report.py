@@ -33,7 +33,7 @@ from linear_gain_flights import (  # benchmarks/linear_gain_flights.py
     true_next,
     visited,
 )
-from loopid.control.lqr import dlqr_affine
+from loopid.control.lqr_affine import dlqr_affine
 from loopid.experiments.families.helicopter.plant import helicopter_plant
 from loopid.systems import helicopter
 from loopid.systems.tasks import make_task

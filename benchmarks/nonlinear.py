@@ -10,7 +10,7 @@
       cost with the torque penalty (``Penalized(pendulum.cost_obs, 2, 100)``), U0 = 0.2 (from
       there iLQR improves for 226 iterations: none stops early). True model:
       :func:`loopid.systems.pendulum.step_obs`. Learned: Δx' = Δx + Wᵀφ(Δx, Δu), φ polynomial of
-      degree 3 (F = 35, :func:`loopid.models.feature_model.polynomial`) or 4 (F = 70, the
+      degree 3 (F = 35, :func:`loopid.models.feature_maps.polynomial`) or 4 (F = 70, the
       swing-up example's), W [F, 4] fitted by
       FTRL least squares (λ = 1e-3) on 40 random starts × 200 steps of uniform random torques,
       planned through ``feature_model.dynamics`` with W traced (``plan(params=W)``).
@@ -62,12 +62,14 @@ import loopid  # noqa: F401  (float64, registers loopid/PendulumHanging-v0)
 from loopid import control
 from loopid.experiments.families.helicopter.expert import funnel_initial_actions
 from loopid.learners import ftrl_least_squares
+from loopid.models import feature_maps as FM
 from loopid.models import feature_model as F
 from loopid.models.linear_offset import LinearOffsetModel
 from loopid.systems import helicopter as h
 from loopid.systems import pendulum
-from loopid.systems.from_gymnasium import GymSystem, Slot
+from loopid.systems.from_gymnasium import GymSystem
 from loopid.systems.funnel_nominal import funnel_nominal
+from loopid.systems.gym_slots import Slot
 from loopid.systems.tasks import make_task
 
 PUSH = jnp.array([[2.0], [-2.0]])  # the swing-up's alternative initial actions (±u_max)
@@ -118,7 +120,7 @@ def pendulum_data(starts=40, steps=200, seed=0):
 def pendulum_learned(degree: int = 3):
     """(dynamics(W, Δx, Δu, t), W) of the feature model of ``degree`` fitted to random torques."""
     nominal = LinearOffsetModel(jnp.eye(4), jnp.zeros((4, 1)))
-    fmap = F.polynomial(4, 1, degree)
+    fmap = FM.polynomial(4, 1, degree)
     W = fit(nominal, fmap, *pendulum_data())
 
     def learned(W, dx, du, t):
@@ -213,9 +215,9 @@ def plan_rows_funnel(iterations, repeats, quick):
     sec, _, sol = timed(true, target, U0, K0, repeats=repeats)
     rows = [("true model (error coordinates)", sec, compile_true, sol)]
     data = funnel_data(target, first.X, first.U)  # about the true model's plan
-    maps = [("polynomial 2, F = 325", F.polynomial(21, 4, 2))]
+    maps = [("polynomial 2, F = 325", FM.polynomial(21, 4, 2))]
     if not quick:
-        maps.append(("RFF 400, F = 425", F.random_fourier(21, 4, 400)))
+        maps.append(("RFF 400, F = 425", FM.random_fourier(21, 4, 400)))
     for label, fmap in maps:
         learned, W = funnel_learned(task, nominal, fmap, data)
         rows.append((f"learned: {label}", *timed(planner(learned), W, U0, K0, repeats=repeats)))
@@ -282,7 +284,7 @@ def mpc_plant_rows(repeats, quick):
         if degree is None:
             model, params = true_model, jnp.zeros((S, 1))
         else:
-            fmap = F.polynomial(21, 4, degree)
+            fmap = FM.polynomial(21, 4, degree)
             w = fit(nominal, fmap, data.dx, data.du, data.dx_next)
             model = lambda p, dx, du, t, fmap=fmap: F.dynamics(nominal, fmap, p)(dx, du, t)  # noqa: E731
             params = jnp.broadcast_to(w, (S, *w.shape))

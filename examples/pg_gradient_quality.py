@@ -8,7 +8,7 @@ mean over ``N`` noise draws):
 1. the exact gradient of the baseline's surrogate ``E_w[log cost of H steps from μ]``;
 2. the exact gradient of the surrogate on *one* noise draw (what common random numbers see);
 3. the baseline's finite-difference estimate from m = 500 transitions (one antithetic pair of
-   H = 125 steps, :func:`~loopid.algorithms.policy_gradient.fd_gradient`).
+   H = 125 steps, :func:`~loopid.algorithms.policy_gradient_step.fd_gradient`).
 
 For each it prints the cosine with ``∇J_400`` and the best ``J_400`` ratio along the direction
 (a line search over step lengths with the exact objective), along ``−g`` and, as the control,
@@ -21,7 +21,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from loopid.algorithms.policy_gradient import budget, fd_gradient
+from loopid.algorithms.policy_gradient_step import budget, fd_gradient
 from loopid.experiments.families.helicopter import agent as agent_of
 from loopid.experiments.families.helicopter import setup
 from loopid.experiments.families.helicopter.scenario import scenario

@@ -2,7 +2,7 @@
 
 The paper's account of its baseline is that 100 samples per iteration give poor gradient
 estimates and 500 do better. Ours reaches about the same cost with either. This script walks
-the baseline's iterations (:func:`~loopid.algorithms.policy_gradient.make_pg_step`, hover, the
+the baseline's iterations (:func:`~loopid.algorithms.policy_gradient_step.make_pg_step`, hover, the
 trim-holding base) with m = 100 and m = 500 side by side, from the same state and with the same
 iteration keys, and prints per iteration the cosine between the two gradient estimates, whether
 each accepted its step, and how far apart the two gain offsets θ have drifted.
@@ -21,7 +21,8 @@ import jax.numpy as jnp
 import numpy as np
 
 from loopid.algorithms.keys import iteration_key, seed_keys
-from loopid.algorithms.policy_gradient import budget, init_state, make_pg_step, pg_base
+from loopid.algorithms.policy_gradient import pg_base
+from loopid.algorithms.policy_gradient_step import budget, init_state, make_pg_step
 from loopid.experiments.families.helicopter import agent as agent_of
 from loopid.experiments.families.helicopter import setup
 from loopid.experiments.families.helicopter.scenario import scenario

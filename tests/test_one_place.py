@@ -50,7 +50,7 @@ def test_a_systems_step_is_called_only_by_the_delayed_loop_and_the_one_step_quer
     for f in [
         "algorithms/plant.py",
         "algorithms/mpc_plant.py",
-        "algorithms/policy_gradient.py",
+        "algorithms/policy_gradient_rollouts.py",
         "experiments/families/helicopter/flights.py",
     ]:
         assert f in acting, f

@@ -12,7 +12,7 @@ import scipy.linalg
 
 from loopid.algorithms import model_based
 from loopid.algorithms.model_based import batched_gains, finite_horizon_gains, linear_agent
-from loopid.control.lqr import _dlqr_affine
+from loopid.control.lqr_affine import dlqr_affine_unchecked
 from loopid.learners import ftrl_least_squares
 from loopid.models.linear_offset import LinearOffsetModel
 
@@ -70,7 +70,7 @@ def test_batched_solve_is_scipys_dare_where_it_converges_and_the_fallback_only_e
     K, info = jax.jit(batched_gains, static_argnums=4)(A, B, Q, R, HORIZON)
     K = np.asarray(K)
     assert np.asarray(info.converged).tolist() == stabilisable.tolist()
-    dare = np.asarray(_dlqr_affine(A, B, Q, R).K)
+    dare = np.asarray(dlqr_affine_unchecked(A, B, Q, R).K)
     for lane in np.flatnonzero(stabilisable):
         np.testing.assert_allclose(K[lane], _scipy_gain(A[lane], B[lane]), rtol=1e-8, atol=1e-10)
         assert np.array_equal(K[lane], dare[lane])  # untouched by the fallback's selection

@@ -11,7 +11,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from loopid.algorithms.policy_gradient import budget, fd_gradient
+from loopid.algorithms.policy_gradient_step import budget, fd_gradient
 
 
 def test_fd_gradient_is_exact_on_a_quadratic():

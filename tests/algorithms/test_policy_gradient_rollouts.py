@@ -19,14 +19,9 @@ from loopid.algorithms.contracts import Agent, SolverInfo
 from loopid.algorithms.keys import seed_keys
 from loopid.algorithms.loop_program import eval_noise
 from loopid.algorithms.plant import Plant, make_plant
-from loopid.algorithms.policy_gradient import (
-    budget,
-    init_state,
-    make_pg_step,
-    make_rollouts,
-    run_policy_gradient,
-    spent,
-)
+from loopid.algorithms.policy_gradient import run_policy_gradient
+from loopid.algorithms.policy_gradient_rollouts import make_rollouts
+from loopid.algorithms.policy_gradient_step import budget, init_state, make_pg_step, spent
 from loopid.control import dlqr_affine
 from loopid.systems.linear import linear_dynamics, linear_task
 

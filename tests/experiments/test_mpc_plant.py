@@ -19,7 +19,7 @@ from loopid.algorithms.transitions import flatten
 from loopid.experiments.families.helicopter.expert import expert_gains
 from loopid.experiments.families.helicopter.plant import helicopter_plant
 from loopid.learners import ftrl_least_squares
-from loopid.models.feature_model import polynomial
+from loopid.models.feature_maps import polynomial
 from loopid.models.linear_offset import hover_nominal
 from loopid.systems import helicopter
 from loopid.systems.tasks import make_task

@@ -13,7 +13,7 @@ from loopid.algorithms.gym_loop import test_episodes as flown_episodes
 from loopid.experiments.families import gym
 from loopid.experiments.families.helicopter.scenario import scenario
 from loopid.systems import pendulum
-from loopid.systems.from_gymnasium import Slot
+from loopid.systems.gym_slots import Slot
 
 SWINGUP = Path(__file__).resolve().parents[2] / "examples" / "pendulum_swingup.toml"
 

@@ -14,12 +14,8 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from loopid.algorithms.policy_gradient import (
-    budget,
-    init_state,
-    make_pg_step,
-    pg_base,
-)
+from loopid.algorithms.policy_gradient import pg_base
+from loopid.algorithms.policy_gradient_step import budget, init_state, make_pg_step
 from loopid.experiments.families.helicopter import agent as agent_of
 from loopid.experiments.families.helicopter import run, setup
 from loopid.experiments.families.helicopter.scenario import scenario

@@ -13,8 +13,8 @@ from loopid.control import ilqr
 from loopid.learners import ftrl_least_squares, ogd
 from loopid.models import LinearOffsetModel, hover_nominal, polynomial, random_fourier
 from loopid.models import linear_offset as lo
+from loopid.models.feature_maps import DEFAULT_DEGREE
 from loopid.models.feature_model import (
-    DEFAULT_DEGREE,
     dynamics,
     features,
     per_sample_loss,

@@ -157,7 +157,7 @@ def test_a_model_restored_from_its_saved_arrays_predicts_as_the_learned_one(rng,
     from loopid.algorithms.contracts import Transitions
     from loopid.algorithms.planning_agent import feature_model, mlp_model
     from loopid.learners import ftrl_least_squares
-    from loopid.models.feature_model import polynomial
+    from loopid.models.feature_maps import polynomial
 
     if kind == "mlp":
         mc = mlp_model(NOMINAL, mlp_learner(NOMINAL, hidden=(8,), lr=3e-3, steps=20, capacity=300))

@@ -22,7 +22,8 @@ from loopid.algorithms.transitions import draw, select
 from loopid.experiments.families.gym import setup
 from loopid.experiments.families.gym.scenario import GymScenario
 from loopid.rounds.api import controller_arrays
-from loopid.systems.from_gymnasium import GymSystem, Rollouts
+from loopid.systems.from_gymnasium import GymSystem
+from loopid.systems.gym_slots import Rollouts
 
 SEED, SAMPLES, ITERATIONS, HORIZON = 3, 30, 4, 20
 CONFIG = f"""

@@ -15,14 +15,10 @@ from loopid.algorithms.gym_loop import (
     run_learning_host,
 )
 from loopid.systems import helicopter
-from loopid.systems.from_gymnasium import (
-    CallablePolicy,
-    GymSystem,
-    LinearPolicy,
-    Slot,
-    observation_cost,
-    slot_streams,
-)
+from loopid.systems.from_gymnasium import GymSystem
+from loopid.systems.gym_cost import observation_cost
+from loopid.systems.gym_policies import CallablePolicy, LinearPolicy
+from loopid.systems.gym_slots import Slot, slot_streams
 
 PENDULUM = {"reset_options": {"x_init": 0.3, "y_init": 0.5}}
 

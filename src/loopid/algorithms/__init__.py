@@ -21,4 +21,6 @@ __all__ = [
     "planning_agent",
     "plant",
     "policy_gradient",
+    "policy_gradient_rollouts",
+    "policy_gradient_step",
 ]

@@ -17,14 +17,14 @@ run and shared by every method through ``program``).
 Randomness: slot seeds are ``SeedSequence([seed, n, stream]).generate_state(k, uint32)`` with
 the host streams of :mod:`loopid.algorithms.keys`: 1 (policy), 2 (ν) and 3 (test, with n = 0:
 the same test episodes at every iteration and for every method at that seed, i.e. common random
-numbers); each slot seeds its env resets and action noise (:mod:`loopid.systems.from_gymnasium`).
+numbers); each slot seeds its env resets and action noise (:mod:`loopid.systems.gym_slots`).
 The draws and the policy/ν choice use the JAX loop's keys
 (:func:`loopid.algorithms.keys.iteration_keys`), and the learning step is the JAX loop's
 (:func:`loopid.algorithms.loop_program.learning_step`).
 
 Test cost of one episode: ``Σ_t c(o_t, a_t)`` over the actions taken (plus ``termination_cost`` if
 it ended by ``terminated``), capped at ``cost_cap``; an episode that reaches the cap or a non-finite
-value counts as diverged. ``c`` is a :class:`~loopid.systems.from_gymnasium.ObservationCost` (on the
+value counts as diverged. ``c`` is a :class:`~loopid.systems.gym_cost.ObservationCost` (on the
 observed entries), ``"reward"`` (the env's own reward, negated: ``c_t = −r_t``) or any callable
 ``cost(obs, action) -> float`` on the raw observation. The tested policy is the last one, or
 with ``test_policy = "best"`` the best so far: each seed's π_n is scored by its mean capped cost
@@ -58,7 +58,9 @@ from loopid.algorithms.model_based import linear_agent
 from loopid.algorithms.transitions import draw
 from loopid.learners import ftrl_least_squares
 from loopid.models.linear_offset import LinearOffsetModel
-from loopid.systems.from_gymnasium import GymSystem, ObservationCost, Rollouts, Slot
+from loopid.systems.from_gymnasium import GymSystem
+from loopid.systems.gym_cost import ObservationCost
+from loopid.systems.gym_slots import Rollouts, Slot
 
 #: The slot stream of ``loopid evaluate``'s episodes: noise the run never saw.
 EVALUATE = HOST_EVALUATE
@@ -240,7 +242,7 @@ def run_learning_host(
     """Run one learning method on a host system for ``len(fractions)`` iterations, every seed.
 
     ``fractions[n−1]`` = ``p_n`` (``fractions[0]`` unused); ``cost(obs, action) -> float`` is the
-    test cost (:class:`~loopid.systems.from_gymnasium.ObservationCost` or any callable);
+    test cost (:class:`~loopid.systems.gym_cost.ObservationCost` or any callable);
     ``progress(n, row)`` after each iteration; ``program`` from :func:`make_host_program` to reuse
     its compilation.
     ``controller(learner_states, K) -> policy``: what flies the policy's training and test

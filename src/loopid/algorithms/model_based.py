@@ -19,7 +19,7 @@ import jax
 import jax.numpy as jnp
 
 from loopid.algorithms.contracts import Agent, SolverInfo, Transitions
-from loopid.control.lqr import _dlqr_affine
+from loopid.control.lqr_affine import dlqr_affine_unchecked
 from loopid.control.tvlqr import tvlqr
 from loopid.learners import Learner, indexed, touched_weights
 from loopid.models.linear_offset import (
@@ -57,7 +57,7 @@ def batched_gains(A, B, Q, R, horizon: int) -> tuple[jax.Array, SolverInfo]:
     as :func:`linear_agent`'s ``policy`` gives one lane. The fallback runs, for every lane and
     then selected, only when some lane needs it (``lax.cond`` on ``any``); a non-finite gain
     becomes 0."""
-    sol = _dlqr_affine(A, B, Q, R)
+    sol = dlqr_affine_unchecked(A, B, Q, R)
     failed = ~sol.converged
 
     def with_fallback():
@@ -126,7 +126,7 @@ def linear_agent(
             ok = jnp.all(jnp.isfinite(K))
             K = jnp.where(ok, K, 0.0)
             return K, SolverInfo(ok, jnp.float64(0.0))
-        sol = _dlqr_affine(A, B, Q, R)
+        sol = dlqr_affine_unchecked(A, B, Q, R)
         K = jax.lax.cond(  # the fallback is solved only where dlqr failed (both under vmap)
             sol.converged, lambda: sol.K, lambda: finite_horizon_gains(A, B, Q, R, horizon)[0]
         )

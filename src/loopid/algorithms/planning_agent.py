@@ -30,6 +30,7 @@ from loopid import control
 from loopid.algorithms.contracts import Agent, SolverInfo, Transitions
 from loopid.learners import Learner
 from loopid.models import feature_model as F
+from loopid.models.feature_maps import FeatureMap
 from loopid.models.linear_offset import LinearOffsetModel, residual_targets
 from loopid.models.mlp import MLPLearner
 
@@ -67,7 +68,7 @@ class FeatureState(NamedTuple):
     W: jax.Array
 
 
-def feature_model(nominal: LinearOffsetModel, fmap: F.FeatureMap, learner: Learner) -> ModelClass:
+def feature_model(nominal: LinearOffsetModel, fmap: FeatureMap, learner: Learner) -> ModelClass:
     """Feature model (:mod:`loopid.models.feature_model`) with one global ``W [F, n]`` learned by
     ``learner`` on (φ(Δx, Δu) [b, F], Δx' − (A_tΔx + B_tΔu) [b, n]); a time-varying nominal is
     taken at each row's step. Saved as ``W_features``."""

@@ -19,29 +19,22 @@ never NaN.
   (receding-horizon iLQR in JAX and for Gymnasium envs), :func:`replanner` (its re-planning step
   for controllers inside a compiled loop), :class:`Penalized`,
   :func:`quadratic_cost`, :func:`action_penalty`: the planner of nonlinear models
-  (:mod:`loopid.control.plan`, :mod:`loopid.control.mpc`)
+  (:mod:`loopid.control.plan`, :mod:`loopid.control.mpc`, :mod:`loopid.control.mpc_controller`,
+  :mod:`loopid.control.costs`; their parts :mod:`loopid.control.plan_settings` and
+  :mod:`loopid.control.receding_horizon`)
 - :func:`rollout`, :func:`linear_rollout`, :func:`tracking_rollout` -> trajectories
 - :func:`value_iteration`, :func:`policy_iteration`, :func:`evaluate`, :func:`occupancy`: finite
   MDPs (batched), exact policy evaluation and discounted occupancy D_{μ,π}
 """
 
+from loopid.control.costs import Penalized, QuadraticCost, action_penalty, quadratic_cost
 from loopid.control.ilqr import ILQRSolution, Quadratization, ilqr, quadratize, trajectory_cost
-from loopid.control.lqr import LQRSolution, dlqr, dlqr_affine
-from loopid.control.mpc import (
-    MPCController,
-    MPCRollout,
-    Replanner,
-    mpc_rollout,
-    replanner,
-)
-from loopid.control.plan import (
-    Penalized,
-    QuadraticCost,
-    action_penalty,
-    as_gains,
-    plan,
-    quadratic_cost,
-)
+from loopid.control.lqr import LQRSolution, dlqr
+from loopid.control.lqr_affine import dlqr_affine
+from loopid.control.mpc import Replanner, mpc_rollout, replanner
+from loopid.control.mpc_controller import MPCController
+from loopid.control.plan import as_gains, plan
+from loopid.control.receding_horizon import MPCRollout
 from loopid.control.rollout import Rollout, linear_rollout, rollout, tracking_rollout
 from loopid.control.tvlqr import TVLQRSolution, tvlqr
 from loopid.control.value_iteration import (

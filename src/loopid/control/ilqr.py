@@ -44,7 +44,7 @@ import jax.numpy as jnp
 from jax import Array
 
 from loopid.control._checks import check_finite, shape_of
-from loopid.control.tvlqr import _backward
+from loopid.control.tvlqr import backward_recursion
 
 __all__ = ["ILQRSolution", "Quadratization", "ilqr", "quadratize", "trajectory_cost"]
 
@@ -115,7 +115,7 @@ def quadratize(dynamics, cost, X: Array, U: Array) -> Quadratization:
 def _backward_pass(quad: Quadratization, mu):
     T, n, _ = quad.A.shape
     c = jnp.zeros((T, n), quad.A.dtype)
-    return _backward(
+    return backward_recursion(
         quad.A,
         quad.B,
         c,
@@ -170,10 +170,11 @@ class _State(NamedTuple):
     history: Array
 
 
-def _ilqr(
+def ilqr_core(
     dynamics, cost, x0, U0, K0, alphas, max_iter, tol, atol, mu_init, mu_min, mu_max, mu_factor
 ):
-    """Jittable core (no checks); ``dynamics``/``cost`` are Python callables closed over."""
+    """Jittable core of :func:`ilqr` (no checks; the settings as arrays, ``K0 [T, m, n]`` given);
+    ``dynamics``/``cost`` are Python callables closed over. Returns :class:`ILQRSolution`."""
     X0, U0 = _initial_rollout(dynamics, x0, U0, K0)
     J0 = trajectory_cost(cost, X0, U0)
     forward = jax.vmap(partial(_forward, dynamics, cost, x0), in_axes=(None, None, None, None, 0))
@@ -237,7 +238,7 @@ def check_settings(alphas, mu_init, mu_min, mu_max, mu_factor) -> Array:
     return alphas
 
 
-_ilqr_jit = jax.jit(_ilqr, static_argnames=("dynamics", "cost", "max_iter"))
+_ilqr_jit = jax.jit(ilqr_core, static_argnames=("dynamics", "cost", "max_iter"))
 
 
 def ilqr(

@@ -35,7 +35,8 @@ Riccati residual is at most ``rtol_residual`` and the closed loop A - BK is Schu
 a CPU, by repeated squaring on an accelerator). A pair that cannot be stabilised (e.g. an
 eigenvalue-1 mode with cost but no control path) returns finite K, P with ``converged = False``.
 
-``dlqr_affine`` handles loopid's error coordinates x = [z; 1] (constant last entry).
+The affine variant for loopid's error coordinates x = [z; 1] (constant last entry) is
+:func:`loopid.control.lqr_affine.dlqr_affine`.
 """
 
 from __future__ import annotations
@@ -45,7 +46,6 @@ from typing import NamedTuple
 
 import jax
 import jax.numpy as jnp
-import numpy as np
 from jax import Array
 
 from loopid.control._checks import (
@@ -54,13 +54,12 @@ from loopid.control._checks import (
     check_psd,
     check_shape,
     check_square,
-    is_concrete,
 )
+from loopid.control.linalg import BLOWUP, broadcast_batch, finite_or_zero, psd_solve
 from loopid.control.spectral import spectral_radius
 
-__all__ = ["LQRSolution", "dlqr", "dlqr_affine"]
+__all__ = ["LQRSolution", "dlqr"]
 
-_BLOWUP = 1e150
 _REFINE_ABOVE = 1e-14  # Newton-refine only a doubling result with a larger relative residual
 
 
@@ -83,57 +82,6 @@ class LQRSolution(NamedTuple):
     residual: Array
     spectral_radius: Array
     iterations: Array
-
-
-def _small_cho_solve(S: Array, rhs: Array) -> Array:
-    """Cholesky solve written out element by element (m ≤ 8): XLA fuses it into a few kernels,
-    where LAPACK's potrf would be one call per matrix (most of tvlqr's time for m = 4)."""
-    m = S.shape[0]
-    L = [[None] * m for _ in range(m)]
-    for j in range(m):
-        d = S[j, j] - sum((L[j][k] * L[j][k] for k in range(j)), start=0.0)
-        L[j][j] = jnp.sqrt(d)
-        for i in range(j + 1, m):
-            v = S[i, j] - sum((L[i][k] * L[j][k] for k in range(j)), start=0.0)
-            L[i][j] = v / L[j][j]
-    y = []
-    for i in range(m):
-        v = rhs[i] - sum((L[i][k] * y[k] for k in range(i)), start=0.0)
-        y.append(v / L[i][i])
-    x = [None] * m
-    for i in reversed(range(m)):
-        v = y[i] - sum((L[k][i] * x[k] for k in range(i + 1, m)), start=0.0)
-        x[i] = v / L[i][i]
-    return jnp.stack(x)
-
-
-def _cho_solve(S: Array, rhs: Array) -> Array:
-    if S.shape[0] <= 8:
-        return _small_cho_solve(S, rhs)
-    L = jnp.linalg.cholesky(S)
-    return jax.scipy.linalg.cho_solve((L, True), rhs)
-
-
-def psd_solve(S: Array, rhs: Array) -> tuple[Array, Array]:
-    """Solve S X = rhs for symmetric PSD ``S [m, m]``, ``rhs [m, k]``; never returns NaN.
-
-    Cholesky first; if that fails (S singular or indefinite by round-off) retry with
-    S + δI, δ = 1e-12·(tr S / m) + 1e-300; if that fails too return zeros. Returns
-    ``(X, ok)`` where ``ok`` is True when the plain Cholesky solve succeeded.
-    """
-    S = 0.5 * (S + S.T)
-    m = S.shape[-1]
-    delta = 1e-12 * jnp.abs(jnp.trace(S)) / m + 1e-300
-    # Both attempts as one stacked solve: half as many (tiny) XLA kernels as two separate ones.
-    S2 = jnp.stack([S, S + delta * jnp.eye(m, dtype=S.dtype)])
-    X2 = jax.vmap(_cho_solve, in_axes=(0, None))(S2, rhs)
-    ok = jnp.all(jnp.isfinite(X2), axis=tuple(range(1, X2.ndim)))
-    X = jnp.where(ok[0], X2[0], jnp.where(ok[1], X2[1], jnp.zeros_like(rhs)))
-    return X, ok[0]
-
-
-def _finite_or_zero(x: Array) -> Array:
-    return jnp.nan_to_num(x, nan=0.0, posinf=_BLOWUP, neginf=-_BLOWUP)
 
 
 def _sda(A: Array, G: Array, H: Array, max_iter: int, tol: float):
@@ -164,7 +112,7 @@ def _sda(A: Array, G: Array, H: Array, max_iter: int, tol: float):
         G1 = 0.5 * (G1 + G1.T)
         H1 = 0.5 * (H1 + H1.T)
         big = jnp.max(jnp.stack([jnp.max(jnp.abs(Z)) for Z in (A1, G1, H1)]))
-        bad = ~jnp.isfinite(big) | (big > _BLOWUP)
+        bad = ~jnp.isfinite(big) | (big > BLOWUP)
         dH = jnp.linalg.norm(H1 - H)
         nH = jnp.linalg.norm(H1)
         met = dH <= tol * nH
@@ -181,7 +129,7 @@ def _gain_and_residual(A, B, Q, R, N, P):
     S = R + B.T @ P @ B
     AtPB_N = A.T @ P @ B + N
     K, _ = psd_solve(S, AtPB_N.T)
-    K = _finite_or_zero(K)
+    K = finite_or_zero(K)
     AtPA = A.T @ P @ A
     res = AtPA - P - AtPB_N @ K + Q
     scale = jnp.linalg.norm(AtPA) + jnp.linalg.norm(P) + jnp.linalg.norm(Q)
@@ -211,11 +159,12 @@ def _newton_step(A, B, Q, R, N, K, max_iter):
     init = (M, Acl, jnp.asarray(0, jnp.int32), jnp.asarray(False))
     X, _, _, _ = jax.lax.while_loop(cond, body, init)
     X = 0.5 * (X + X.T)
-    return _finite_or_zero(X)
+    return finite_or_zero(X)
 
 
-def _dlqr_single(A, B, Q, R, N, max_iter, tol, rtol_residual, newton_steps=2) -> LQRSolution:
-    """One system, no checks; jittable and vmappable."""
+def dlqr_single(A, B, Q, R, N, max_iter, tol, rtol_residual, newton_steps=2) -> LQRSolution:
+    """The solve of the module docstring for one system (``A [n, n]``, ``B [n, m]``, ``Q``,
+    ``R``, ``N [n, m]``; no batch axes), no checks; jittable and vmappable."""
     m = B.shape[-1]
     Q = 0.5 * (Q + Q.T)
     R = 0.5 * (R + R.T)
@@ -231,7 +180,7 @@ def _dlqr_single(A, B, Q, R, N, max_iter, tol, rtol_residual, newton_steps=2) ->
     LiBT = jax.scipy.linalg.solve_triangular(L, B.T, lower=True)  # [m, n]
     G0 = LiBT.T @ LiBT
     P, iterations, met = _sda(A0, G0, Q0, max_iter, tol)
-    P = _finite_or_zero(P)
+    P = finite_or_zero(P)
     K, residual = _gain_and_residual(A, B, Q, R, N, P)
 
     # Defect correction: Newton (Kleinman-Hewer) steps recover the digits the doubling loses
@@ -263,7 +212,9 @@ def _dlqr_single(A, B, Q, R, N, max_iter, tol, rtol_residual, newton_steps=2) ->
     return LQRSolution(K, P, converged, residual, rho, iterations)
 
 
-def _check_lqr_args(A, B, Q, R, N):
+def check_lqr_args(A, B, Q, R, N):
+    """:func:`dlqr`'s checks (``N`` may be None): shapes always, finiteness and symmetric PSD
+    ``Q``, ``R`` on concrete inputs; returns ``(batch shape, n, m)``."""
     sA = check_square("A", A)
     n = sA[-1]
     sB = check_shape("B", B, (n, None))
@@ -283,20 +234,14 @@ def _check_lqr_args(A, B, Q, R, N):
     return batch, n, m
 
 
-def _broadcast_batch(*xs):
-    """Broadcast the leading (batch) axes of matrices ``[..., r, c]`` to one batch shape."""
-    batch = tuple(np.broadcast_shapes(*(x.shape[:-2] for x in xs)))
-    return batch, [jnp.broadcast_to(x, batch + x.shape[-2:]) for x in xs]
-
-
 @partial(jax.jit, static_argnames=("max_iter",))
 def _dlqr(A, B, Q, R, N=None, max_iter=64, tol=1e-13, rtol_residual=1e-8) -> LQRSolution:
     """Batched core, no checks: leading axes broadcast here (inside the jit: no eager dispatch
     per argument); ``N=None`` is zero."""
     if N is None:
         N = jnp.zeros(A.shape[:-2] + B.shape[-2:], A.dtype)
-    batch, (A, B, Q, R, N) = _broadcast_batch(A, B, Q, R, N)
-    f = partial(_dlqr_single, max_iter=max_iter, tol=tol, rtol_residual=rtol_residual)
+    batch, (A, B, Q, R, N) = broadcast_batch(A, B, Q, R, N)
+    f = partial(dlqr_single, max_iter=max_iter, tol=tol, rtol_residual=rtol_residual)
     if not batch:
         return f(A, B, Q, R, N)
     flat = [x.reshape((-1, *x.shape[-2:])) for x in (A, B, Q, R, N)]
@@ -333,79 +278,7 @@ def dlqr(
     Shape checks always run (also on tracers, inside ``jit``/``vmap``/``scan``); symmetry and
     PSD checks run on concrete inputs only. Call it directly from jitted code.
     """
-    _check_lqr_args(A, B, Q, R, N)
+    check_lqr_args(A, B, Q, R, N)
     A, B, Q, R = (jnp.asarray(x, dtype=jnp.float64) for x in (A, B, Q, R))
     N = None if N is None else jnp.asarray(N, dtype=jnp.float64)
     return _dlqr(A, B, Q, R, N, max_iter=max_iter, tol=tol, rtol_residual=rtol_residual)
-
-
-def _dlqr_affine_single(A, B, Q, R, max_iter, tol, rtol_residual) -> LQRSolution:
-    F, c, G = A[:-1, :-1], A[:-1, -1], B[:-1]
-    Q = 0.5 * (Q + Q.T)
-    Qzz, qz = Q[:-1, :-1], Q[:-1, -1]
-    nz, m = G.shape
-    sol = _dlqr_single(F, G, Qzz, R, jnp.zeros((nz, m), F.dtype), max_iter, tol, rtol_residual)
-    Kz, Pz = sol.K, sol.P
-    Acl = F - G @ Kz
-    lhs = jnp.eye(nz, dtype=F.dtype) - Acl.T
-    rhs = qz + Acl.T @ (Pz @ c)
-    p = jnp.linalg.solve(lhs, rhs)
-    p_ok = jnp.all(jnp.isfinite(p))
-    # the pseudo-inverse (an SVD) only where the solve failed: one system runs one branch (a
-    # batch under vmap runs both and selects, the same numbers)
-    p = jax.lax.cond(p_ok, lambda: p, lambda: _finite_or_zero(jnp.linalg.pinv(lhs) @ rhs))
-    S = R + G.T @ Pz @ G
-    kff, _ = psd_solve(S, (G.T @ (Pz @ c + p))[:, None])
-    kff = _finite_or_zero(kff[:, 0])
-    K = jnp.concatenate([Kz, kff[:, None]], axis=1)
-    P = jnp.block([[Pz, p[:, None]], [p[None, :], jnp.zeros((1, 1), F.dtype)]])
-    return sol._replace(K=K, P=P, converged=sol.converged & p_ok)
-
-
-@partial(jax.jit, static_argnames=("max_iter",))
-def _dlqr_affine(A, B, Q, R, max_iter=64, tol=1e-13, rtol_residual=1e-8) -> LQRSolution:
-    batch, (A, B, Q, R) = _broadcast_batch(A, B, Q, R)
-    f = partial(_dlqr_affine_single, max_iter=max_iter, tol=tol, rtol_residual=rtol_residual)
-    if not batch:
-        return f(A, B, Q, R)
-    flat = [x.reshape((-1, *x.shape[-2:])) for x in (A, B, Q, R)]
-    sol = jax.vmap(f)(*flat)
-    return jax.tree.map(lambda y: y.reshape(batch + y.shape[1:]), sol)
-
-
-def dlqr_affine(
-    A, B, Q, R, *, max_iter: int = 64, tol: float = 1e-13, rtol_residual: float = 1e-8
-) -> LQRSolution:
-    """Steady-state LQR for affine dynamics written with a constant last coordinate.
-
-    x = [z; 1] with ``A = [[F, c], [0, 1]]``, ``B = [[G], [0]]``, ``Q = [[Q_zz, q], [qᵀ, q₀]]``,
-    so z_{t+1} = F z_t + G u_t + c and the stage cost is zᵀQ_zz z + 2qᵀz + q₀ + uᵀRu. The constant
-    mode is uncontrollable at eigenvalue 1, so the DARE is solved on the z block (F, G, Q_zz, R)
-    giving K_z, P_z. The value's linear term p (cost-to-go zᵀP_z z + 2pᵀz + const) is the fixed
-    point of the finite-horizon recursion p ← q + (F - GK_z)ᵀ(P_z c + p), i.e. the linear solve
-
-        (I - (F - GK_z)ᵀ) p = q + (F - GK_z)ᵀ P_z c,
-
-    and the feedforward is k = (R + GᵀP_zG)⁻¹ Gᵀ(P_z c + p). Returned ``K = [K_z, k]`` has shape
-    ``[..., m, n]`` so that u = -K x; ``P = [[P_z, p], [pᵀ, 0]]`` (the constant part of the value
-    grows with the horizon at the average cost per step and is reported as 0). ``converged``,
-    ``residual``, ``spectral_radius`` and ``iterations`` refer to the z block (and ``converged``
-    also needs a finite p). This is the limit of the first gain of :func:`tvlqr` on the same
-    problem as the horizon grows.
-
-    Shapes as :func:`dlqr`; the last row of A must be [0, …, 0, 1] and the last row of B zero.
-    """
-    _, n, _ = _check_lqr_args(A, B, Q, R, None)
-    if n < 2:
-        raise ValueError(f"A must be at least 2x2 (state plus constant), got shape {jnp.shape(A)}")
-    if is_concrete(A) and is_concrete(B):
-        last = np.asarray(A)[..., -1, :]
-        want = np.zeros(n)
-        want[-1] = 1.0
-        if not np.allclose(last, want, rtol=0.0, atol=1e-12):
-            raise ValueError(f"A's last row must be [0, ..., 0, 1] (the constant), got {last}")
-        lastB = np.asarray(B)[..., -1, :]
-        if not np.allclose(lastB, 0.0, rtol=0.0, atol=1e-12):
-            raise ValueError(f"B's last row must be zero (constant coordinate), got {lastB}")
-    A, B, Q, R = (jnp.asarray(x, dtype=jnp.float64) for x in (A, B, Q, R))
-    return _dlqr_affine(A, B, Q, R, max_iter=max_iter, tol=tol, rtol_residual=rtol_residual)

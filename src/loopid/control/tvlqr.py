@@ -34,7 +34,7 @@ import jax.numpy as jnp
 from jax import Array
 
 from loopid.control._checks import check_finite, check_psd, check_shape, shape_of
-from loopid.control.lqr import psd_solve
+from loopid.control.linalg import psd_solve
 
 __all__ = ["TVLQRSolution", "tvlqr"]
 
@@ -63,8 +63,11 @@ class _BackwardAux(NamedTuple):
     ok: Array  # every H_uu (+ μI) was positive definite
 
 
-def _backward(A, B, c, Q, q, R, r, M, Q_T, q_T, mu, *, regularized=True):
-    """The recursion of the module docstring; all per-step arrays carry the time axis.
+def backward_recursion(A, B, c, Q, q, R, r, M, Q_T, q_T, mu, *, regularized=True):
+    """The recursion of the module docstring, μI added to H_uu (:func:`tvlqr` with μ = 0, and
+    iLQR's backward pass); all per-step arrays carry the time axis. No checks. Returns
+    ``(TVLQRSolution, aux)``, ``aux`` iLQR's ``hu_k``, ``kHk`` and ``ok`` (every H_uu + μI
+    positive definite).
 
     ``c``, ``q``, ``r``, ``M`` and ``q_T`` may be ``None`` (zero): their terms are then left out
     of the trace, and with no affine or linear term at all ``k`` and ``p`` are exactly zero and
@@ -166,7 +169,7 @@ def _tvlqr(A, B, c, Q, q, R, r, M, Q_T, q_T, T) -> TVLQRSolution:
     )
     if Q_T is None:
         Q_T = jnp.zeros(A.shape[-2:], A.dtype)
-    sol, _ = _backward(A, B, c, Q, q, R, r, M, Q_T, q_T, 0.0, regularized=False)
+    sol, _ = backward_recursion(A, B, c, Q, q, R, r, M, Q_T, q_T, 0.0, regularized=False)
     return sol
 
 

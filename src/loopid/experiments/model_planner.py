@@ -30,7 +30,7 @@ from dataclasses import dataclass
 from typing import Any
 
 from loopid.experiments.config import check_choice, check_int, check_number
-from loopid.models.feature_model import DEFAULT_BANDWIDTH, DEFAULT_COUNT, DEFAULT_DEGREE
+from loopid.models.feature_maps import DEFAULT_BANDWIDTH, DEFAULT_COUNT, DEFAULT_DEGREE
 
 MODEL_KINDS = ("linear", "features", "mlp")
 FEATURE_MAPS = ("polynomial", "fourier")
@@ -45,7 +45,7 @@ class ModelPlanner:
     Attributes:
       model_kind: ``linear``, ``features`` or ``mlp``.
       model_features: the feature map, ``polynomial`` or ``fourier``.
-      model_degree: the polynomial's highest degree (:mod:`loopid.models.feature_model`).
+      model_degree: the polynomial's highest degree (:mod:`loopid.models.feature_maps`).
       model_count, model_bandwidth, model_seed: random Fourier features: how many, their
         bandwidth σ (in the error coordinates' units) and the seed of their draw (the MLP's
         initial weights too).
@@ -203,7 +203,7 @@ def make_agent(s, nominal, Q, R, horizon: int, *, start=None, U0=None, plan_cost
 def feature_map(s, n: int, m: int):
     """The feature map of the config ``s`` (``linear``: the degree-1 map) for sizes n, m: what
     a saved ``W_features`` multiplies (:class:`loopid.experiments.learned.FeatureModel`)."""
-    from loopid.models.feature_model import polynomial, random_fourier
+    from loopid.models.feature_maps import polynomial, random_fourier
 
     if s.model_kind == "linear":
         return polynomial(n, m, 1)

@@ -4,7 +4,8 @@ linear-Gaussian test system, finite MDPs, and any Gymnasium environment (:class:
 from loopid.systems import helicopter, tasks
 from loopid.systems.as_gymnasium import HelicopterEnv
 from loopid.systems.base import Dynamics
-from loopid.systems.from_gymnasium import GymSystem, ObservationCost, observation_cost
+from loopid.systems.from_gymnasium import GymSystem
+from loopid.systems.gym_cost import ObservationCost, observation_cost
 from loopid.systems.helicopter import (
     from_error,
     funnel_target,

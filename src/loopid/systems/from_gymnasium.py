@@ -15,228 +15,37 @@ operating action ``a_op`` [m]::
 smaller than the env's observation size (Pendulum: sin θ and θ̇, leaving out cos θ, which a linear
 model cannot follow: cos θ − 1 ≈ −θ²/2 looks like an unstable mode no linear control reaches).
 
-Policies are affine gains ``K: [horizon, m, n]`` with ``a_t = a_op − K_τ Δx_t`` (τ = steps since
-the episode's reset), as in :mod:`loopid.algorithms.plant`. Every action is clipped to the action
-Box and cast to its dtype before the step; the transition records the action actually applied.
+Policies (:mod:`loopid.systems.gym_policies`) are objects with ``act(obs, t, index)``, e.g. the
+loop's affine gains ``K: [horizon, m, n]`` with ``a_t = a_op − K_τ Δx_t`` (τ = steps since the
+episode's reset). Every action is clipped to the action Box and cast to its dtype before the
+step; the transition records the action actually applied. The cost on observations is
+:mod:`loopid.systems.gym_cost`.
 
-A *slot* is one fixed-shape buffer of ``horizon`` steps (:class:`Slot`): its episode stops at
-``terminated``, ``truncated``, after ``horizon`` actions, at a non-finite action, or (training
-slots, ``restart=True``) when ``‖[Δx_{:−1}; Δu]‖₂ > stop_norm``; a training slot then resets and
-goes on filling its buffer (as the JAX plant restarts from μ); a test slot masks the rest.
-
-Seeding: slot ``j`` owns a NumPy generator ``default_rng(seed_j)``; it draws the action noise
-``ε [horizon, m]`` first, then one reset seed per episode (``integers(2**32)``). Every reset of a
-used sub-environment is seeded, so a slot's data depends on its seed alone, not on which
-sub-environment ran it or on ``num_envs``. (Sub-environments left idle once the queue is empty
-are reset with seed 0 and their steps discarded.)
+Data fill *slots* (:mod:`loopid.systems.gym_slots`): fixed-shape buffers of ``horizon`` steps,
+each an episode that stops at ``terminated``, ``truncated``, after ``horizon`` actions, at a
+non-finite action, or (training slots, ``restart=True``) when
+``‖[Δx_{:−1}; Δu]‖₂ > stop_norm``; a training slot then resets and goes on filling its buffer
+(as the JAX plant restarts from μ); a test slot masks the rest. Each slot seeds its own action
+noise and resets, so its data depends on its seed alone (not on ``num_envs``).
 """
 
 from __future__ import annotations
 
 import copy
 from collections.abc import Callable, Sequence
-from typing import Any, NamedTuple
+from typing import Any
 
 import gymnasium
 import numpy as np
 from gymnasium.vector import AutoresetMode
 
-__all__ = [
-    "CallablePolicy",
-    "GymSystem",
-    "LinearPolicy",
-    "ObservationCost",
-    "OpenLoopPolicy",
-    "Rollouts",
-    "Slot",
-    "make_env_fn",
-    "observation_cost",
-    "slot_streams",
-]
+from loopid.systems.gym_cost import finite_vector
+from loopid.systems.gym_policies import LinearPolicy
+from loopid.systems.gym_slots import Rollouts, Slot, slot_streams
+
+__all__ = ["GymSystem", "make_env_fn"]
 
 
-# ----------------------------------------------------------------------------- costs
-class ObservationCost(NamedTuple):
-    """The quadratic cost on an env's observed entries and actions (the helicopter task's cost,
-    written on observations): ``c(o, a) = (o − o*)ᵀ Q (o − o*) + (a − a_op)ᵀ R (a − a_op)``.
-
-    ``target`` [n_obs], ``Q`` [n_obs, n_obs], ``R`` [m, m], ``a_op`` [m]. Callable on one pair
-    (returns a float) or on batches ``obs [..., n_obs]``, ``action [..., m]`` (returns ``[...]``).
-    """
-
-    target: np.ndarray
-    Q: np.ndarray
-    R: np.ndarray
-    a_op: np.ndarray
-
-    def __call__(self, obs, action):
-        e = np.asarray(obs, np.float64) - self.target
-        d = np.asarray(action, np.float64) - self.a_op
-        c = np.einsum("...i,ij,...j->...", e, self.Q, e) + np.einsum(
-            "...i,ij,...j->...", d, self.R, d
-        )
-        return float(c) if np.ndim(c) == 0 else c
-
-    def augmented(self) -> tuple[np.ndarray, np.ndarray]:
-        """(Q_aug [n, n], R [m, m]): Q on ``Δx = [o − o*; 1]``, 0 on the constant coordinate."""
-        n_obs = self.Q.shape[0]
-        Qa = np.zeros((n_obs + 1, n_obs + 1))
-        Qa[:n_obs, :n_obs] = self.Q
-        return Qa, self.R
-
-
-def _square(name: str, value, size: int) -> np.ndarray:
-    """A [size, size] PSD matrix from a full matrix, a diagonal vector or a scalar."""
-    M = np.asarray(value, dtype=np.float64)
-    if M.ndim == 0:
-        M = np.full(size, float(M))
-    if M.ndim == 1:
-        if M.shape != (size,):
-            raise ValueError(
-                f"{name} must have {size} diagonal entries or be {size}x{size}, got shape {M.shape}"
-            )
-        M = np.diag(M)
-    if M.shape != (size, size):
-        raise ValueError(
-            f"{name} must be {size}x{size} (or {size} diagonal entries), got shape {M.shape}"
-        )
-    if not np.all(np.isfinite(M)):
-        raise ValueError(f"{name} must be finite, got {M.tolist()}")
-    if not np.allclose(M, M.T) or np.linalg.eigvalsh((M + M.T) / 2).min() < -1e-12:
-        raise ValueError(f"{name} must be symmetric positive semidefinite, got {M.tolist()}")
-    return (M + M.T) / 2
-
-
-def _vector(name: str, value, size: int) -> np.ndarray:
-    v = np.asarray(value, dtype=np.float64)
-    if v.shape != (size,) or not np.all(np.isfinite(v)):
-        raise ValueError(
-            f"{name} must be {size} finite numbers, got {np.asarray(value).tolist()!r}"
-        )
-    return v
-
-
-def observation_cost(target, Q, R, a_op=None) -> ObservationCost:
-    """A checked :class:`ObservationCost`; ``Q``/``R`` may be full matrices, diagonals or scalars.
-
-    Raises ValueError naming ``Q``, ``R``, ``target`` or ``a_op`` when a size does not match.
-    """
-    t = np.asarray(target, dtype=np.float64)
-    if t.ndim != 1 or t.size == 0:
-        raise ValueError(f"target must be a non-empty vector, got shape {t.shape}")
-    t = _vector("target", t, t.size)
-    Rm = np.asarray(R, dtype=np.float64)
-    m = Rm.shape[0] if Rm.ndim >= 1 else (np.asarray(a_op).size if a_op is not None else 1)
-    Qm = _square("Q", Q, t.size)
-    Rm = _square("R", R, m)
-    a = np.zeros(m) if a_op is None else _vector("a_op", a_op, m)
-    return ObservationCost(t, Qm, Rm, a)
-
-
-# ----------------------------------------------------------------------------- policies
-class LinearPolicy:
-    """Affine gains ``K [C, T, m, n]`` (C stacked policies): ``a = a_op − K[c, τ] [o − o*; 1]``.
-
-    ``K`` may also be ``[T, m, n]`` or ``[m, n]`` (one policy; time-invariant) or ``[m, n_obs]``
-    (no feedforward column). ``act(obs [k, n_obs], t [k], index [k])`` picks policy ``index``.
-    """
-
-    def __init__(self, K, target, a_op, observe=None):
-        K = np.asarray(K, dtype=np.float64)
-        self.observe = observe
-        self.target = np.asarray(target, dtype=np.float64)
-        self.a_op = np.asarray(a_op, dtype=np.float64)
-        n_obs, m = self.target.shape[0], self.a_op.shape[0]
-        if K.ndim >= 2 and K.shape[-2:] == (m, n_obs):
-            K = np.concatenate([K, np.zeros((*K.shape[:-1], 1))], axis=-1)
-        if K.ndim < 2 or K.ndim > 4 or K.shape[-2:] != (m, n_obs + 1):
-            raise ValueError(
-                f"K must be [(C,) (T,) {m}, {n_obs + 1}] or [{m}, {n_obs}], got {K.shape}"
-            )
-        while K.ndim < 4:
-            K = K[None]
-        self.K = K
-
-    def act(self, obs, t, index):
-        if self.observe is not None:
-            obs = obs[:, self.observe]
-        dx = np.concatenate([obs - self.target, np.ones((obs.shape[0], 1))], axis=1)
-        Kr = self.K[index % self.K.shape[0], np.minimum(t, self.K.shape[1] - 1)]
-        return self.a_op - np.einsum("kmn,kn->km", Kr, dx)
-
-
-class CallablePolicy:
-    """A user's policy ``fn(obs [n_obs]) -> action [m]`` applied row by row (``batched=True``:
-    ``fn(obs [k, n_obs]) -> [k, m]`` in one call)."""
-
-    def __init__(self, fn: Callable, m: int, *, batched: bool = False):
-        if not callable(fn):
-            raise TypeError(f"policy must be callable, got {fn!r}")
-        self.fn, self.m, self.batched = fn, m, batched
-
-    def act(self, obs, t, index):
-        if self.batched:
-            a = np.asarray(self.fn(obs), dtype=np.float64)
-        else:
-            a = np.stack([np.asarray(self.fn(o), dtype=np.float64).reshape(-1) for o in obs])
-        if a.shape != (obs.shape[0], self.m):
-            raise ValueError(
-                f"policy returned actions of shape {a.shape}, expected {(obs.shape[0], self.m)}"
-            )
-        return a
-
-
-class OpenLoopPolicy:
-    """A nominal action sequence ``U [T, m]``: ``a_τ = U[τ]`` (the last row after the end)."""
-
-    def __init__(self, U):
-        self.U = np.atleast_2d(np.asarray(U, dtype=np.float64))
-
-    def act(self, obs, t, index):
-        return self.U[np.minimum(t, self.U.shape[0] - 1)]
-
-
-class Slot(NamedTuple):
-    """One buffer to fill: ``policy`` (index into the policies list), ``index`` (its sub-policy,
-    e.g. the seed's gain), ``seed`` (the slot's generator seed), ``action_std`` and ``restart``."""
-
-    policy: int
-    index: int
-    seed: int
-    action_std: float = 0.0
-    restart: bool = True
-
-
-class Rollouts(NamedTuple):
-    """Recorded slots, numpy, leading axes ``[R, T]``.
-
-    ``x`` [R, T, n_raw] raw observations, ``dx``/``dx_next`` [R, T, n], ``du`` [R, T, m] applied
-    action minus ``a_op``, ``reward`` [R, T] the env's rewards, ``t`` [R, T] int32 steps since
-    reset, ``mask`` [R, T] (the step was
-    taken, finite and inside ``stop_norm``); ``steps`` [R] actions taken, ``terminated`` [R]
-    (an episode ended by ``terminated``), ``finite`` [R] (no non-finite action or observation).
-    """
-
-    x: np.ndarray
-    dx: np.ndarray
-    du: np.ndarray
-    dx_next: np.ndarray
-    t: np.ndarray
-    mask: np.ndarray
-    reward: np.ndarray
-    steps: np.ndarray
-    terminated: np.ndarray
-    finite: np.ndarray
-
-
-def slot_streams(slot: Slot, horizon: int, m: int) -> tuple[np.ndarray, np.random.Generator]:
-    """A slot's action noise ``ε [horizon, m]`` and the generator that then draws its episodes'
-    reset seeds (``integers(2**32)`` per reset), from ``default_rng(slot.seed)``."""
-    rng = np.random.default_rng(slot.seed)
-    return rng.standard_normal((horizon, m)) * slot.action_std, rng
-
-
-# ----------------------------------------------------------------------------- the system
 def make_env_fn(env, kwargs: dict | None = None) -> Callable[[], gymnasium.Env]:
     """A factory for one sub-environment: from an id (``gymnasium.make(id, **kwargs)``), a
     factory, or an instance (deep-copied for every sub-environment)."""
@@ -337,13 +146,13 @@ class GymSystem:
             self.n_obs = int(idx.size)
         self.n = self.n_obs + 1
         try:
-            self.target = _vector("target", target, self.n_obs)
+            self.target = finite_vector("target", target, self.n_obs)
         except ValueError:
             raise ValueError(
                 f"target must be {self.n_obs} finite numbers (the observed entries of "
                 f"{self.env_id}), got {np.asarray(target).tolist()!r}"
             ) from None
-        self.a_op = np.zeros(self.m) if a_op is None else _vector("a_op", a_op, self.m)
+        self.a_op = np.zeros(self.m) if a_op is None else finite_vector("a_op", a_op, self.m)
         if horizon is None:
             if spec_steps is None:
                 raise ValueError(f"{self.env_id} has no max_episode_steps: give horizon")

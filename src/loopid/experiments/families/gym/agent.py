@@ -25,7 +25,7 @@ from loopid.experiments import model_planner
 from loopid.experiments.families.gym.env import EnvShape
 from loopid.experiments.families.gym.scenario import GymScenario
 from loopid.models.linear_offset import LinearOffsetModel
-from loopid.systems.from_gymnasium import ObservationCost, observation_cost
+from loopid.systems.gym_cost import ObservationCost, observation_cost
 
 
 def import_callable(name: str, what: str):

@@ -78,7 +78,7 @@ def trajectories(run_dir, configs, path) -> None:
     from loopid.experiments import artifacts
     from loopid.experiments.families.gym.saved import saved_policy
     from loopid.experiments.families.gym.setup import gym_setup
-    from loopid.systems.from_gymnasium import Slot
+    from loopid.systems.gym_slots import Slot
 
     for name, s in configs.items():
         cells = Path(run_dir) / "cells"

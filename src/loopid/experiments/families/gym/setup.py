@@ -32,7 +32,8 @@ from loopid.experiments.families.gym.agent import (
 from loopid.experiments.families.gym.env import EnvShape, env_shape, opened_system
 from loopid.experiments.families.gym.scenario import FRACTIONS, METHODS, GymScenario
 from loopid.experiments.families.helicopter.methods import policy_fractions
-from loopid.systems.from_gymnasium import CallablePolicy, GymSystem, OpenLoopPolicy
+from loopid.systems.from_gymnasium import GymSystem
+from loopid.systems.gym_policies import CallablePolicy, OpenLoopPolicy
 
 
 class Setup(NamedTuple):
@@ -46,7 +47,7 @@ class Setup(NamedTuple):
       compiled: the agent, its compiled host loop program and controller
         (:class:`~.agent.CompiledAgent`).
       exploration: ν (:class:`~loopid.algorithms.gym_loop.Exploration`).
-      test_cost: an :class:`~loopid.systems.from_gymnasium.ObservationCost`, ``"reward"`` or a
+      test_cost: an :class:`~loopid.systems.gym_cost.ObservationCost`, ``"reward"`` or a
         callable ``cost(obs, action)``.
     """
 

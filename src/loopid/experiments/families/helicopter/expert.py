@@ -16,7 +16,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from loopid.control.ilqr import ilqr
-from loopid.control.lqr import _dlqr_affine
+from loopid.control.lqr_affine import dlqr_affine_unchecked
 from loopid.systems import helicopter
 from loopid.systems.tasks import Task
 
@@ -24,7 +24,7 @@ from loopid.systems.tasks import Task
 @jax.jit
 def _linearised_lqr(x_star, x_star_next, Q, R):
     A, B = helicopter.linearize(x_star, x_star_next)
-    return _dlqr_affine(A, B, Q, R)
+    return dlqr_affine_unchecked(A, B, Q, R)
 
 
 def hover_expert_gain(task: Task) -> jax.Array:

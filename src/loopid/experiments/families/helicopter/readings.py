@@ -18,7 +18,7 @@ A *reading* is one defensible way to build such a detail; each is a field of
   rollouts, each scored by its cost (``rollouts``), or transitions (``transitions``).
 - ``pg_update``: the policy gradient's step: CPI's conservative update on one shared noise draw
   (``conservative``), or plain gradient descent on independent samples (``descent``);
-  :mod:`loopid.algorithms.policy_gradient`.
+  :mod:`loopid.algorithms.policy_gradient_step`.
 - ``nu_t_center``: what ν_t ("white Gaussian noise to each state and action along the desired
   trajectory") draws around: the cost's target with no action (``target``), the target's
   states with the hover-trim controls (``trim``), or the expert's planned flight, its states and

@@ -19,8 +19,8 @@ from importlib import resources
 from loopid.algorithms.collect import SAMPLING_MODES
 from loopid.algorithms.loop_program import TEST_POLICIES
 from loopid.algorithms.plant import check_delay_reading
-from loopid.algorithms.policy_gradient import SAMPLES_MODES as PG_SAMPLES
-from loopid.algorithms.policy_gradient import UPDATES as PG_UPDATES
+from loopid.algorithms.policy_gradient_step import SAMPLES_MODES as PG_SAMPLES
+from loopid.algorithms.policy_gradient_step import UPDATES as PG_UPDATES
 from loopid.experiments import model_planner
 from loopid.experiments.config import check_int, check_number, read_flat_file, replaced
 from loopid.experiments.families.helicopter.readings import (
