@@ -1,11 +1,12 @@
 """What every entry point of the gym family builds first, once: the :class:`Setup`.
 
 :func:`gym_setup` opens the scenario's env (:mod:`.env`) and builds everything a cell or a saved
-policy needs from it: the env's sizes and coordinates, the compiled agent (:mod:`.agent`, cached
-across calls), ν and the test cost. ``run`` (one cell), ``check``, ``shared``, ``load``,
-``evaluate``, ``trajectories`` and ``animate`` all take that one object; the env is closed when
-the ``with`` block ends. Every problem found while building it (a size that does not fit the env,
-a ``module:function`` that does not import) is one line of ``ValueError``.
+policy needs from it: the env's sizes and coordinates, the compiled agent
+(:mod:`loopid.experiments.families.gym.agent`, cached across calls), ν and the test cost. ``run``
+(one cell), ``check``, ``shared``, ``load``, ``evaluate``, ``trajectories`` and ``animate`` all take
+that one object; the env is closed when the ``with`` block ends. Every problem found while building
+it (a size that does not fit the env, a ``module:function`` that does not import) is one line of
+``ValueError``.
 
 Methods: ``dagger`` (p_n = ``dagger_fraction``), ``batch`` (p_n = 0), ``abbeel`` (ν's data at
 n = 2, then the policy's), run by :func:`loopid.algorithms.gym_loop.run_learning_host`.

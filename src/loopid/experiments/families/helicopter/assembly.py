@@ -145,8 +145,8 @@ def nu_t_centre(reading: str, plant: Plant, K_expert: jax.Array) -> Centre | Non
     (:data:`loopid.experiments.families.helicopter.readings.NU_T_CENTERS`):
 
     - ``target``: the cost's target with no action (None:
-    :func:`loopid.algorithms.exploration.nu_trajectory`'s
-      default). On the funnel that target has no collective and a level attitude.
+      :func:`loopid.algorithms.exploration.nu_trajectory`'s default). On the funnel that target
+      has no collective and a level attitude.
     - ``trim``: the target's states with the hover-trim controls in their previous-action
       entries, no action.
     - ``nominal``: the expert's planned flight, its states and its changes ``Δu``

@@ -12,8 +12,7 @@ r"""Finite MDPs through the same loop as the helicopter: plant, ν, agent, exact
   estimator; :func:`classifier_model`: the deterministic model learnt by online hinge
   classification), and value iteration on the learnt model (greedy policy).
 - :func:`mdp_diagnostics`: the exact theory each iteration
-(:mod:`loopid.experiments.families.mdp.theory`), as extra
-  result columns.
+  (:mod:`loopid.experiments.families.mdp.theory`), as extra result columns.
 
 Sampling uses inverse CDFs (one uniform per draw), so a step costs O(S) and no Gumbel noise.
 """
