@@ -64,7 +64,7 @@ from loopid.experiments.executors import (
 )
 from loopid.experiments.families import FAMILIES, Family, family_of, scenario_names
 from loopid.experiments.report import cell_times, report_text
-from loopid.experiments.results import with_metadata, write_atomic_bytes
+from loopid.experiments.results import with_metadata
 from loopid.experiments.rundir import RunDir, normalized
 from loopid.experiments.tasks import (
     ProgressFactory,
@@ -73,6 +73,7 @@ from loopid.experiments.tasks import (
     progress_bars,
     resplit,
 )
+from loopid.files import write_atomic_bytes
 
 #: A scenario of any family (its config dataclass).
 Scenario = Any

@@ -14,7 +14,8 @@ from pathlib import Path
 import numpy as np
 import pyarrow as pa
 
-from loopid.experiments.results import read_table, write_atomic_bytes
+from loopid.experiments.results import read_table
+from loopid.files import write_atomic_bytes
 
 #: Label, colour and line style per method (the paper's legend names).
 STYLE = {

@@ -24,13 +24,8 @@ import tomli_w
 
 from loopid.experiments.config import seeds_from_value, seeds_value
 from loopid.experiments.readings import continue_hint, readings_of
-from loopid.experiments.results import (
-    concat,
-    metadata,
-    read_table,
-    replace_atomically,
-    write_atomic,
-)
+from loopid.experiments.results import concat, metadata, read_table
+from loopid.files import replace_atomically, write_atomic
 
 
 def to_toml(config: dict) -> str:

@@ -128,8 +128,8 @@ def run_study(
     a ``ValueError`` raised before anything is written.
     """
     from loopid.experiments.execute import check_cells, resolved_config, run_cells
-    from loopid.experiments.results import write_atomic
     from loopid.experiments.rundir import RunDir
+    from loopid.files import write_atomic
 
     started = time.perf_counter() if started is None else started
     base = {name: s.replace(**changes) for name, s in SCENARIOS.items()}
@@ -152,4 +152,3 @@ def run_study(
         out, readings, base, command_s=time.perf_counter() - started, prediction=prediction
     )
     return readings
-

@@ -17,7 +17,7 @@ import pyarrow.compute as pc
 from loopid.algorithms.methods import METHODS
 from loopid.experiments.paired import VERDICT_WORDS
 from loopid.experiments.readings import DEFAULT_PRESET, PRESETS, READING_FIELDS, reading_text
-from loopid.experiments.results import concat, write_atomic_bytes
+from loopid.experiments.results import concat
 from loopid.experiments.scenarios import Scenario
 from loopid.experiments.study_readings import (
     ALL_PANELS,
@@ -28,6 +28,7 @@ from loopid.experiments.study_readings import (
     Reading,
     relabel,
 )
+from loopid.files import write_atomic_bytes
 
 
 def _cells(table: pa.Table, panel: str, method: str) -> pa.Table:

@@ -23,7 +23,7 @@ import numpy as np
 
 from loopid.algorithms.loop_program import batch_losses
 from loopid.experiments.families.gym.agent import CompiledAgent, compiled_agent
-from loopid.experiments.results import write_atomic
+from loopid.files import write_atomic
 from loopid.rounds import report
 from loopid.rounds.config import RoundsConfig, read_config
 from loopid.rounds.data import RoundData, read_round, transitions

@@ -15,7 +15,7 @@ import pyarrow as pa
 from loopid.experiments import model_planner
 from loopid.experiments.families.gym.scenario import METHODS
 from loopid.experiments.report import final_cost_sections
-from loopid.experiments.results import write_atomic_bytes
+from loopid.files import write_atomic_bytes
 
 
 def _pyplot():
