@@ -34,10 +34,10 @@ import numpy as np
 import loopid  # noqa: F401  (float64, registers loopid/PendulumHanging-v0)
 from loopid.algorithms import gym_loop, planning_agent
 from loopid.experiments import model_planner
-from loopid.experiments.config import parse_assignment
 from loopid.experiments.families import gym
 from loopid.experiments.families.gym.setup import gym_setup
 from loopid.learners import ftrl_least_squares
+from loopid.settings.toml import parse_assignment
 
 EXAMPLE = Path(__file__).resolve().parents[1] / "examples" / "pendulum_swingup.toml"
 REFERENCE = 295.4  # the true-model iLQR's Gym cost (tests/experiments/test_nonlinear.py)

@@ -30,6 +30,7 @@ PACKAGES = [
     "loopid.exploration",
     "loopid.theory",
     "loopid.algorithms",
+    "loopid.settings",
     "loopid.experiments",
     "loopid.rounds",
 ]

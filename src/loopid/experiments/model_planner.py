@@ -18,7 +18,7 @@ guarantee holds for any model class with a no-regret learner and any optimal-con
 In a config dataclass these are flat fields with a prefix (``model_kind``, ``model_degree``,
 ``planner_kind``, ...; :data:`FIELDS`), so ``--set model_kind=features`` works like any other
 field, and a TOML file may write them either flat or as the two tables above
-(:func:`loopid.experiments.config.flatten_tables` with :data:`TABLES`).
+(:func:`loopid.settings.toml.flatten_tables` with :data:`TABLES`).
 
 ``linear`` + ``lqr`` is the paper's agent (linear offset model, FTRL, LQR) and the default: a
 scenario that sets nothing here runs exactly as before. ``lqr`` needs the linear model (it solves
@@ -29,8 +29,8 @@ import dataclasses
 from dataclasses import dataclass
 from typing import Any
 
-from loopid.experiments.config import check_choice, check_int, check_number
 from loopid.models.feature_model import DEFAULT_BANDWIDTH, DEFAULT_COUNT, DEFAULT_DEGREE
+from loopid.settings.checks import check_choice, check_int, check_number
 
 MODEL_KINDS = ("linear", "features", "mlp")
 FEATURE_MAPS = ("polynomial", "fourier")

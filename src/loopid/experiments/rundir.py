@@ -22,9 +22,9 @@ from pathlib import Path
 import pyarrow as pa
 import tomli_w
 
-from loopid.experiments.config import seeds_from_value, seeds_value
 from loopid.experiments.readings import continue_hint, readings_of
 from loopid.experiments.results import concat, metadata, read_table
+from loopid.experiments.seeds import seeds_from_value, seeds_value
 from loopid.files import replace_atomically, write_atomic
 
 

@@ -21,7 +21,6 @@ from loopid.algorithms.plant import check_delay_reading
 from loopid.algorithms.policy_gradient import SAMPLES_MODES as PG_SAMPLES
 from loopid.algorithms.policy_gradient import UPDATES as PG_UPDATES
 from loopid.experiments import model_planner
-from loopid.experiments.config import check_int, check_number, read_flat_file, replaced
 from loopid.experiments.readings import (
     DEFAULT_PRESET,
     NU_T_CENTERS,
@@ -30,6 +29,8 @@ from loopid.experiments.readings import (
     reading_text,
     readings_line,
 )
+from loopid.settings.checks import check_int, check_number, replaced
+from loopid.settings.toml import read_flat_file
 from loopid.systems.funnel_nominal import FUNNEL_NOMINALS
 from loopid.systems.tasks import TASK_DELAYS, TASK_NAMES
 

@@ -24,9 +24,9 @@ from pathlib import Path
 
 import pyarrow as pa
 
-from loopid.experiments.config import seeds_from_value
 from loopid.experiments.readings import READING_FIELDS
 from loopid.experiments.scenarios import SCENARIOS, Scenario
+from loopid.experiments.seeds import seeds_from_value
 from loopid.experiments.study_readings import (
     BY_ID,
     DEFAULT,

@@ -28,17 +28,11 @@ from functools import cached_property
 from typing import Any
 
 from loopid.experiments import model_planner
-from loopid.experiments.config import (
-    Table,
-    check_choice,
-    check_int,
-    check_number,
-    freeze,
-    thaw,
-)
 from loopid.experiments.families.gym.env import EnvShape
-from loopid.experiments.families.gym.scenario import METHODS, check_model, read_file
+from loopid.experiments.families.gym.scenario import METHODS, check_model
 from loopid.experiments.families.gym.scenario import TABLES as GYM_TABLES
+from loopid.settings.checks import check_choice, check_int, check_number
+from loopid.settings.toml import Table, freeze, read_tables, thaw
 
 
 @dataclass(frozen=True)
@@ -156,7 +150,7 @@ _REQUIRED = {"system": ("states", "actions", "target"), "cost": ("Q", "R")}
 def read_config(path) -> RoundsConfig:
     """The :class:`RoundsConfig` of a TOML file; one-line ``ValueError`` naming an unknown or
     missing table or key (the gym family's reader, with this format's tables), or a bad value."""
-    out, _ = read_file(path, TABLES, _REQUIRED)
+    out, _ = read_tables(path, TABLES, _REQUIRED)
     try:
         return RoundsConfig(**out)
     except (ValueError, TypeError) as err:

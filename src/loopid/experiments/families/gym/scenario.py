@@ -36,16 +36,8 @@ from typing import Any
 import numpy as np
 
 from loopid.experiments import model_planner
-from loopid.experiments.config import (
-    Table,
-    check_choice,
-    check_int,
-    check_number,
-    freeze,
-    read_toml,
-    replaced,
-    thaw,
-)
+from loopid.settings.checks import check_choice, check_int, check_number, replaced
+from loopid.settings.toml import Table, freeze, read_tables, thaw
 
 METHODS = ("dagger", "batch", "abbeel")
 #: The helicopter method whose p_n schedule each gym method follows.
@@ -124,7 +116,7 @@ class GymScenario(model_planner.ModelPlanner):
     def plain(self) -> dict[str, Any]:
         """Every field as a plain TOML value (tuples back to lists, tables to dicts, ``None``
         kept): what the env, the cost, the model and ν are built from. Computed once per
-        scenario, in one call of :func:`~loopid.experiments.config.thaw`; read it, do not
+        scenario, in one call of :func:`~loopid.settings.toml.thaw`; read it, do not
         change it (it is not part of the scenario's value: equality and hashing ignore it)."""
         return thaw(Table((f.name, getattr(self, f.name)) for f in fields(self)))
 
@@ -233,42 +225,11 @@ TABLES = {
 _REQUIRED = {"env": ("id",), "cost": ("target", "Q", "R"), "exploration": ()}
 
 
-def read_file(path, tables=None, required=None) -> tuple[dict, list[str] | None]:
+def read_file(path) -> tuple[dict, list[str] | None]:
     """A gym TOML file as ``(fields, methods or None)``; one-line ``ValueError`` naming an
-    unknown or missing table or key (values are checked when the scenario is built).
-    ``tables``, ``required``: another file format of the same kind (default :data:`TABLES`
-    and the gym file's required keys; :mod:`loopid.rounds.config` reads its file so)."""
-    tables = TABLES if tables is None else tables
-    required = _REQUIRED if required is None else required
-    raw = read_toml(path)
-    where = f"--config {str(path)!r}"
-    out: dict = {}
-    methods = None
-    for table, given in raw.items():
-        if table not in tables:
-            raise ValueError(f"{where}: unknown table [{table}]; allowed: {', '.join(tables)}")
-        if not isinstance(given, dict):
-            raise ValueError(f"{where}: {table} must be a table, got {given!r}")
-        for key, value in given.items():
-            if key not in tables[table]:
-                raise ValueError(
-                    f"{where}: unknown key {table}.{key}; allowed: {', '.join(tables[table])}"
-                )
-            if tables[table][key] is None:
-                methods = value
-            else:
-                out[tables[table][key]] = value
-    for table, keys in required.items():
-        if table not in raw:
-            raise ValueError(f"{where}: missing table [{table}]")
-        for key in keys:
-            if key not in raw[table]:
-                raise ValueError(f"{where}: missing key {table}.{key}")
-    if methods is not None and (
-        not isinstance(methods, list) or not methods or not all(isinstance(m, str) for m in methods)
-    ):
-        raise ValueError(f"{where}: run.methods must be a non-empty list, got {methods!r}")
-    return out, methods
+    unknown or missing table or key (values are checked when the scenario is built;
+    :func:`loopid.settings.toml.read_tables` with :data:`TABLES`)."""
+    return read_tables(path, TABLES, _REQUIRED)
 
 
 def build(name: str, changes: dict) -> GymScenario:

@@ -20,7 +20,6 @@ import numpy as np
 from loopid.algorithms.gym_loop import Exploration, run_learning_host
 from loopid.algorithms.loop import Trace
 from loopid.algorithms.methods import policy_fractions
-from loopid.experiments.config import seed_list
 from loopid.experiments.families.base import Progress
 from loopid.experiments.families.gym.agent import (
     CompiledAgent,
@@ -32,6 +31,7 @@ from loopid.experiments.families.gym.agent import (
 )
 from loopid.experiments.families.gym.env import EnvShape, env_shape, opened_system
 from loopid.experiments.families.gym.scenario import FRACTIONS, METHODS, GymScenario
+from loopid.experiments.seeds import seed_list
 from loopid.systems.from_gymnasium import CallablePolicy, GymSystem, OpenLoopPolicy
 
 
@@ -101,7 +101,7 @@ def check(s: GymScenario) -> None:
 
 def run(method: str, s: GymScenario, seeds=None, progress: Progress | None = None) -> Trace:
     """Run ``method`` (:data:`~.scenario.METHODS`) on every seed (default
-    :func:`~loopid.experiments.config.seed_list`): ``N = iterations`` rows per seed."""
+    :func:`~loopid.experiments.seeds.seed_list`): ``N = iterations`` rows per seed."""
     if method not in METHODS:
         raise ValueError(f"unknown gym method {method!r}; choose from {', '.join(METHODS)}")
     with gym_setup(s) as setup:

@@ -21,7 +21,6 @@ animated (:mod:`loopid.experiments.families.helicopter.saved`).
 
 from loopid.algorithms import methods as M
 from loopid.experiments import model_planner
-from loopid.experiments.config import read_flat_file
 from loopid.experiments.families.base import Family
 from loopid.experiments.families.helicopter.assembly import (
     Setup,
@@ -47,6 +46,7 @@ from loopid.experiments.families.helicopter.saved import (
     trajectories,
 )
 from loopid.experiments.scenarios import FIELDS, SCENARIOS, Scenario, scenario
+from loopid.settings.toml import read_flat_file
 
 
 class HelicopterFamily(Family):

@@ -30,7 +30,6 @@ figure, the report section and ``trajectories.png``).
 from dataclasses import fields
 
 from loopid.algorithms.loop import program_memory
-from loopid.experiments.config import read_flat_file
 from loopid.experiments.families.base import Family
 from loopid.experiments.families.mdp.figures import mdp_figure, report, trajectories
 from loopid.experiments.families.mdp.scenario import (
@@ -47,6 +46,7 @@ from loopid.experiments.families.mdp.scenario import (
     scenario_model,
     scenario_nu,
 )
+from loopid.settings.toml import read_flat_file
 
 
 class MDPFamily(Family):

@@ -30,12 +30,7 @@ from loopid.algorithms.mdp_agent import (
     mdp_plant,
     policy_nu,
 )
-from loopid.experiments.config import (
-    check_choice,
-    check_int,
-    check_number,
-    replaced,
-)
+from loopid.settings.checks import check_choice, check_int, check_number, replaced
 from loopid.systems.mdp import TRAP_WALK, FiniteMDP, random_mdp, trap_mdp
 
 MDP_METHODS = ("dagger", "batch", "abbeel")
