@@ -21,4 +21,5 @@ __all__ = [
     "planning_agent",
     "plant",
     "policy_gradient",
+    "schedules",
 ]

@@ -27,10 +27,11 @@ from dataclasses import dataclass, fields
 from functools import cached_property
 from typing import Any
 
+from loopid.algorithms.schedules import SCHEDULES
 from loopid.experiments import model_planner
 from loopid.experiments.families.gym.env import EnvShape
-from loopid.experiments.families.gym.scenario import METHODS, check_model
 from loopid.experiments.families.gym.scenario import TABLES as GYM_TABLES
+from loopid.experiments.families.gym.scenario import check_model
 from loopid.settings.checks import check_choice, check_int, check_number
 from loopid.settings.toml import Table, freeze, read_tables, thaw
 
@@ -130,7 +131,7 @@ def validate(c: RoundsConfig) -> None:
     if c.action_limit is not None:
         check_number("action_limit", c.action_limit, 0.0, open_low=True)
     check_int("samples", c.samples)
-    check_choice("method", c.method, METHODS)
+    check_choice("method", c.method, SCHEDULES)
     check_number("dagger_fraction", c.dagger_fraction, 0.0, 1.0)
     check_model(c, c.horizon)
 

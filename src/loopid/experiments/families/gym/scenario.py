@@ -35,13 +35,13 @@ from typing import Any
 
 import numpy as np
 
+from loopid.algorithms.schedules import SCHEDULES
 from loopid.experiments import model_planner
 from loopid.settings.checks import check_choice, check_int, check_number, replaced
 from loopid.settings.toml import Table, freeze, read_tables, thaw
 
-METHODS = ("dagger", "batch", "abbeel")
-#: The helicopter method whose p_n schedule each gym method follows.
-FRACTIONS = {"dagger": "dagger-t", "batch": "batch-t", "abbeel": "abbeel"}
+#: Each method follows the schedule of its name (:mod:`loopid.algorithms.schedules`).
+METHODS = SCHEDULES
 _TABLE_FIELDS = ("env_kwargs", "reset_options")
 _NO_TABLE = Table()
 

@@ -19,7 +19,7 @@ import numpy as np
 
 from loopid.algorithms.gym_loop import Exploration, run_learning_host
 from loopid.algorithms.loop import Trace
-from loopid.algorithms.methods import policy_fractions
+from loopid.algorithms.schedules import policy_fractions
 from loopid.experiments.families.base import Progress
 from loopid.experiments.families.gym.agent import (
     CompiledAgent,
@@ -30,7 +30,7 @@ from loopid.experiments.families.gym.agent import (
     nominal,
 )
 from loopid.experiments.families.gym.env import EnvShape, env_shape, opened_system
-from loopid.experiments.families.gym.scenario import FRACTIONS, METHODS, GymScenario
+from loopid.experiments.families.gym.scenario import METHODS, GymScenario
 from loopid.experiments.seeds import seed_list
 from loopid.systems.from_gymnasium import CallablePolicy, GymSystem, OpenLoopPolicy
 
@@ -106,9 +106,7 @@ def run(method: str, s: GymScenario, seeds=None, progress: Progress | None = Non
         raise ValueError(f"unknown gym method {method!r}; choose from {', '.join(METHODS)}")
     with gym_setup(s) as setup:
         seeds = seed_list(s) if seeds is None else np.asarray(seeds)
-        fractions = policy_fractions(
-            FRACTIONS[method], s.iterations, dagger_fraction=s.dagger_fraction
-        )
+        fractions = policy_fractions(method, s.iterations, dagger_fraction=s.dagger_fraction)
         return run_learning_host(
             setup.system, setup.compiled.agent, setup.exploration, fractions,
             [int(x) for x in seeds], samples=s.samples, n_test=s.test_trajectories,

@@ -13,7 +13,7 @@ Scenarios (:data:`MDP_SCENARIOS`):
 
 Methods (:data:`MDP_METHODS`): ``dagger`` (p_n = ½), ``batch`` (p_n = 0), ``abbeel`` (ν at
 n = 2, then the policy only); the fractions come from
-:func:`loopid.algorithms.methods.policy_fractions`. Policy draws are ``geometric`` (exact
+:func:`loopid.algorithms.schedules.policy_fractions`. Policy draws are ``geometric`` (exact
 draws from D_{μ,π}, the paper's analysis). Every method of a scenario shares one compiled loop
 program.
 
