@@ -4,7 +4,7 @@
   called only by :class:`loopid.algorithms.closed_loop.DelayedLoop` (through ``act``) and by the
   plant's one-step generative query, which is not a closed loop;
 - agent assembly: the agents (``linear_agent``, ``planning_agent``, ``ilqr_plan``) are built only
-  by :func:`loopid.experiments.model_planner.make_agent`, which every family calls, and by the
+  by :func:`loopid.algorithms.agents.make_agent`, which every family calls, and by the
   library's documented ``gym_agent`` (the paper's agent for a Gymnasium system).
 """
 
@@ -60,7 +60,7 @@ def test_agents_are_assembled_in_one_place():
     for constructor in ("linear_agent", "planning_agent", "ilqr_plan"):
         places = _calls(constructor)
         assert {f for f, _ in places} <= {
-            "experiments/model_planner.py",
+            "algorithms/agents.py",
             "algorithms/gym_loop.py",
         }, (constructor, places)
         assert all(fn in ("make_agent", "gym_agent") for _, fn in places), (constructor, places)

@@ -5,6 +5,7 @@ Public means listed here and documented: every submodule below is part of the AP
 """
 
 __all__ = [
+    "agents",
     "closed_loop",
     "collect",
     "contracts",

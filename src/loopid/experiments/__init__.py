@@ -17,7 +17,6 @@ __all__ = [
     "findings",
     "flights",
     "learned",
-    "model_planner",
     "plots",
     "readings",
     "report",

@@ -28,10 +28,10 @@ from functools import cached_property
 from typing import Any
 
 from loopid.algorithms.schedules import SCHEDULES
-from loopid.experiments import model_planner
 from loopid.experiments.families.gym.env import EnvShape
 from loopid.experiments.families.gym.scenario import TABLES as GYM_TABLES
 from loopid.experiments.families.gym.scenario import check_model
+from loopid.settings import model_planner
 from loopid.settings.checks import check_choice, check_int, check_number
 from loopid.settings.toml import Table, freeze, read_tables, thaw
 

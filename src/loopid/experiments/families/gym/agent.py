@@ -20,11 +20,12 @@ from typing import Any, NamedTuple
 import jax
 import numpy as np
 
+from loopid.algorithms import agents
 from loopid.algorithms.gym_loop import gym_nominal_model, make_host_program
-from loopid.experiments import model_planner
 from loopid.experiments.families.gym.env import EnvShape
 from loopid.experiments.families.gym.scenario import GymScenario
 from loopid.models.linear_offset import LinearOffsetModel
+from loopid.settings import model_planner
 from loopid.systems.from_gymnasium import ObservationCost, observation_cost
 
 
@@ -92,11 +93,12 @@ def compiled_agent(s: GymScenario, shape: EnvShape) -> CompiledAgent:
     v = s.plain
     cost = design_cost(v, shape)
     model = nominal(v, shape)
-    if model_planner.is_paper_agent(s):
+    spec = model_planner.specs(s)
+    if agents.is_paper_agent(spec):
         Q, R = cost.augmented()  # sized to the system by design_cost
-        agent = model_planner.make_agent(s, model, Q, R, shape.horizon)
+        agent = agents.make_agent(spec, model, Q, R, shape.horizon)
         return CompiledAgent(agent, make_host_program(agent, samples=s.samples))
-    return _planning_agent(s, v, shape, cost, model)
+    return _planning_agent(s, spec, v, shape, cost, model)
 
 
 def _start(start, shape: EnvShape) -> np.ndarray:
@@ -112,7 +114,7 @@ def _start(start, shape: EnvShape) -> np.ndarray:
     return np.concatenate([o - np.asarray(shape.target), [1.0]])
 
 
-def _planning_agent(s: GymScenario, v: dict, shape: EnvShape, cost, nominal) -> CompiledAgent:
+def _planning_agent(s: GymScenario, spec, v: dict, shape: EnvShape, cost, nominal) -> CompiledAgent:
     """A model class of :mod:`loopid.algorithms.planning_agent` planned by iLQR (or MPC) on the
     cost's Q, R, with the action box kept by :func:`loopid.control.action_penalty`."""
     from loopid.control import MPCController, Penalized, quadratic_cost
@@ -133,11 +135,10 @@ def _planning_agent(s: GymScenario, v: dict, shape: EnvShape, cost, nominal) -> 
                 f"[planner] alternatives must be action vectors of {shape.m} entries, "
                 f"got {v['planner_alternatives']!r}"
             )
-    mc = checked("model", model_planner.model_class, s, nominal)
+    mc = checked("model", agents.model_class, spec.model, spec.learner, nominal)
     U0 = np.full((shape.horizon, shape.m), 0.1 * (shape.u_limit or 1.0))
-    agent = model_planner.make_agent(
-        s, nominal, Q, R, shape.horizon, start=start, U0=U0,
-        plan_cost=plan_cost, alternatives=alternatives, model=mc,
+    agent = agents.make_agent(
+        spec, nominal, Q, R, shape.horizon, start=start, U0=U0, plan_cost=plan_cost, model=mc,
     )  # fmt: skip
     program = make_host_program(agent, samples=s.samples)
     if s.planner_kind != "mpc":

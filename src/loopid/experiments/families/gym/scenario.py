@@ -36,7 +36,7 @@ from typing import Any
 import numpy as np
 
 from loopid.algorithms.schedules import SCHEDULES
-from loopid.experiments import model_planner
+from loopid.settings import model_planner
 from loopid.settings.checks import check_choice, check_int, check_number, replaced
 from loopid.settings.toml import Table, freeze, read_tables, thaw
 
@@ -64,7 +64,7 @@ class GymScenario(model_planner.ModelPlanner):
       gain, policy, nominal, action_std: ν (exactly one of the first three) and its noise.
       A, B, time_varying, ftrl_lambda: the nominal model and the FTRL regulariser.
       model_*, planner_*: the model class and the optimal-control solver
-        (:mod:`loopid.experiments.model_planner`; default a linear model and LQR).
+        (:mod:`loopid.settings.model_planner`; default a linear model and LQR).
       test_policy: the policy tested at each iteration: ``last`` (the paper's) or ``best``, the
         best so far, selected on episodes of its own
         (:func:`loopid.algorithms.gym_loop.run_learning_host`; gains only, not under ``mpc``).

@@ -20,7 +20,6 @@ animated (:mod:`loopid.experiments.families.helicopter.saved`).
 """
 
 from loopid.algorithms import methods as M
-from loopid.experiments import model_planner
 from loopid.experiments.families.base import Family
 from loopid.experiments.families.helicopter.assembly import (
     Setup,
@@ -46,6 +45,7 @@ from loopid.experiments.families.helicopter.saved import (
     trajectories,
 )
 from loopid.experiments.scenarios import FIELDS, SCENARIOS, Scenario, scenario
+from loopid.settings import model_planner
 from loopid.settings.toml import read_flat_file
 
 

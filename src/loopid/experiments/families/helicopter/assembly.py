@@ -16,14 +16,15 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from loopid.algorithms import agents
 from loopid.algorithms import helicopter_plant as core
 from loopid.algorithms.expert import expert_gains
 from loopid.algorithms.loop import Agent, LoopProgram, make_loop_program, seed_keys
 from loopid.algorithms.plant import Plant
-from loopid.experiments import model_planner
 from loopid.experiments.scenarios import Scenario
 from loopid.exploration import Centre, make_nus, planned_flight
 from loopid.models.linear_offset import LinearOffsetModel
+from loopid.settings import model_planner
 from loopid.systems import helicopter
 from loopid.systems.tasks import make_task
 
@@ -36,9 +37,9 @@ class Setup(NamedTuple):
       K_expert: the expert's gains ``[T, 4, 21]`` (the LQR of the true simulator's
         linearisation about the target, :func:`loopid.algorithms.expert.expert_gains`).
       nominal: the initial model every learned offset adds to.
-      model: the ``model_*`` model class (:func:`loopid.experiments.model_planner.model_class`),
+      model: the ``model_*`` model class (:func:`loopid.algorithms.agents.model_class`),
         or None for the paper's linear offset model.
-      agent: the model-based agent (:func:`loopid.experiments.model_planner.make_agent`).
+      agent: the model-based agent (:func:`loopid.algorithms.agents.make_agent`).
       nus: the ν samplers ``[ν_t, ν_e, ν_en]`` (:data:`loopid.exploration.NU_KINDS`).
       program: the one compiled loop program that DAgger, Batch and Abbeel share, whichever ν
         they draw from (a traced switch).
@@ -99,12 +100,13 @@ def _setup(key: Scenario) -> Setup:
     # step; the funnel's time-varying nominal is kept) is planned by iLQR on the task's
     # quadratic cost from the task's start, over the task horizon (under ``mpc`` too: its gains
     # are what the cell saves; MPC flies)
-    paper = model_planner.is_paper_agent(key)
-    model = None if paper else model_planner.model_class(key, nominal)
-    agent = model_planner.make_agent(
-        key, nominal, task.Q, task.R, plant.horizon,
+    spec = model_planner.specs(key)
+    paper = agents.is_paper_agent(spec)
+    model = None if paper else agents.model_class(spec.model, spec.learner, nominal)
+    agent = agents.make_agent(
+        spec, nominal, task.Q, task.R, plant.horizon,
         start=helicopter.to_error(jnp.asarray(task.x0), jnp.asarray(task.target)[0]),
-        U0=np.zeros((plant.horizon, helicopter.N_ACTION)), alternatives=alternatives, model=model,
+        U0=np.zeros((plant.horizon, helicopter.N_ACTION)), model=model,
     )  # fmt: skip
     nus = make_nus(
         plant, K_expert, state_var=key.nu_state_var, action_var=key.nu_action_var,

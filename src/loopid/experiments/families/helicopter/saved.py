@@ -6,6 +6,7 @@ from pathlib import Path
 import jax
 import numpy as np
 
+from loopid.algorithms import agents
 from loopid.algorithms import methods as M
 from loopid.algorithms.keys import TEST, stream_key
 from loopid.algorithms.loop import (
@@ -13,13 +14,13 @@ from loopid.algorithms.loop import (
     noise_program,
     seed_keys,
 )
-from loopid.experiments import model_planner
 from loopid.experiments.artifacts import tested_gains
 from loopid.experiments.families.helicopter.assembly import scenario_plant, setup
 from loopid.experiments.findings import findings_section
 from loopid.experiments.report import final_cost_sections
 from loopid.experiments.scenarios import Scenario, readings_line
 from loopid.models.linear_offset import LinearOffsetModel
+from loopid.settings import model_planner
 from loopid.systems import helicopter
 from loopid.systems.tasks import is_hover
 
@@ -75,7 +76,7 @@ def load(s: Scenario, method: str, arrays: dict):
         if "W" in arrays:
             model = LinearModel(nominal, arrays["W"])
         else:
-            fmap = model_planner.feature_map(s, nominal.n, nominal.m)
+            fmap = agents.feature_map(model_planner.specs(s).model, nominal.n, nominal.m)
             model = FeatureModel(nominal, fmap, arrays["W_features"])
     return model, controller
 
