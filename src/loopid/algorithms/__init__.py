@@ -12,6 +12,7 @@ __all__ = [
     "expert",
     "gym_loop",
     "helicopter_plant",
+    "host_agent",
     "keys",
     "loop",
     "loop_program",

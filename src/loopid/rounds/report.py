@@ -28,8 +28,8 @@ richer model class.
 
 import numpy as np
 
+from loopid.algorithms.host_agent import design_cost
 from loopid.algorithms.schedules import policy_fractions
-from loopid.experiments.families.gym.agent import design_cost
 from loopid.rounds.config import RoundsConfig
 
 COLUMNS = ("loss_nu", "loss_policy", "loss_all", "relative", "online", "regret", "policy_cost")
@@ -47,7 +47,7 @@ def split(config: RoundsConfig, n: int) -> tuple[int, int]:
 def row(config: RoundsConfig, n: int, data, **losses) -> dict:
     """The diagnostics of the update on ``data``, collected while controller ``n`` was deployed
     (``losses``: loss_nu, loss_policy, loss_all, relative, online, regret)."""
-    cost = design_cost(config.plain, config.shape)
+    cost = design_cost(config.spec, config.shape)
     pol = data.policy
     policy_cost = float(np.mean(cost(data.x[pol], data.u[pol]))) if pol.any() else None
     out = {

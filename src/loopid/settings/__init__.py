@@ -7,5 +7,6 @@ Public means listed here and documented: every submodule below is part of the AP
 __all__ = [
     "checks",
     "model_planner",
+    "observed",
     "toml",
 ]
