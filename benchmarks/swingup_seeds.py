@@ -32,12 +32,11 @@ import jax
 import numpy as np
 
 import loopid  # noqa: F401  (float64, registers loopid/PendulumHanging-v0)
-from loopid.algorithms import gym_loop, planning_agent
-from loopid.experiments import model_planner
-from loopid.experiments.config import parse_assignment
+from loopid.algorithms import agents, gym_loop, planning_agent
 from loopid.experiments.families import gym
 from loopid.experiments.families.gym.setup import gym_setup
 from loopid.learners import ftrl_least_squares
+from loopid.settings.toml import parse_assignment
 
 EXAMPLE = Path(__file__).resolve().parents[1] / "examples" / "pendulum_swingup.toml"
 REFERENCE = 295.4  # the true-model iLQR's Gym cost (tests/experiments/test_nonlinear.py)
@@ -62,15 +61,17 @@ def jacrev_dynamics(base):
 
 
 def model_class(jacobian: str):
-    """:func:`loopid.experiments.model_planner.model_class` with the Jacobian computed as asked."""
-    original = model_planner.model_class
+    """:func:`loopid.algorithms.agents.model_class` with the Jacobian computed as asked."""
+    original = agents.model_class
 
-    def make(s, nominal):
-        mc = original(s, nominal)
+    def make(model, learner, nominal):
+        mc = original(model, learner, nominal)
         if jacobian in ("jacfwd", "jacrev"):  # autodiff through the features
-            fmap = dataclasses.replace(model_planner.feature_map(s, nominal.n, nominal.m),
+            fmap = dataclasses.replace(agents.feature_map(model, nominal.n, nominal.m),
                                        jacobian=None)  # fmt: skip
-            mc = planning_agent.feature_model(nominal, fmap, ftrl_least_squares(s.ftrl_lambda))
+            mc = planning_agent.feature_model(
+                nominal, fmap, ftrl_least_squares(learner.ftrl_lambda)
+            )
         if jacobian == "jacrev":
             mc = mc._replace(dynamics=jacrev_dynamics(mc.dynamics))
         return mc
@@ -89,7 +90,7 @@ def main() -> None:
     fields, _ = gym.read_file(EXAMPLE)
     changes = dict(parse_assignment(kv) for kv in a.set)
     s = gym.build("gym", {**fields, "seeds": a.seeds, "test_trajectories": 1, **changes})
-    model_planner.model_class = model_class(a.jacobian)  # what the gym family's agent calls
+    agents.model_class = model_class(a.jacobian)  # what the gym family's agent calls
     t = time.perf_counter()
     trace = gym.run(a.method, s)
     seconds = time.perf_counter() - t

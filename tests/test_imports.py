@@ -4,6 +4,7 @@ of a module's own ancestor package (``import loopid`` in ``loopid.experiments.ex
 an edge: Python has imported the ancestors before the module, whatever it names."""
 
 import ast
+import sys
 from pathlib import Path
 
 import loopid
@@ -82,3 +83,52 @@ def test_the_cycle_finder_finds_a_cycle():
 
 def test_no_import_cycle():
     assert cycles(import_graph()) == []
+
+
+ENGINE = ("algorithms", "control", "learners", "models", "systems")
+
+
+def _under(name: str, packages) -> bool:
+    return any(name == f"loopid.{p}" or name.startswith(f"loopid.{p}.") for p in packages)
+
+
+def test_the_layers_import_downwards_only():
+    """The engine imports nothing of the settings, the round directories, the experiments or the
+    command line; the settings only the engine and themselves; the round directories nothing of
+    the experiments or the command line."""
+    graph = import_graph()
+    banned = {
+        ENGINE: ("settings", "rounds", "experiments", "cli"),
+        ("rounds",): ("experiments", "cli"),
+    }
+    found = {
+        (m, t)
+        for layer, above in banned.items()
+        for m, targets in graph.items()
+        if _under(m, layer)
+        for t in targets
+        if _under(t, above)
+    }
+    found |= {
+        (m, t)
+        for m, targets in graph.items()
+        if _under(m, ("settings",))
+        for t in targets
+        if not _under(t, (*ENGINE, "settings"))
+    }
+    assert not found, sorted(found)
+
+
+def test_the_settings_import_only_the_standard_library_and_numpy():
+    """Besides loopid's engine (:func:`test_the_layers_import_downwards_only`)."""
+    outside = set()
+    for path in (SRC / "settings").rglob("*.py"):
+        for node in ast.walk(ast.parse(path.read_text(), str(path))):
+            names = []
+            if isinstance(node, ast.Import):
+                names = [a.name for a in node.names]
+            elif isinstance(node, ast.ImportFrom) and node.module and node.level == 0:
+                names = [node.module]
+            top = {n.split(".")[0] for n in names}
+            outside |= top - set(sys.stdlib_module_names) - {"numpy", "loopid"}
+    assert not outside, outside

@@ -4,8 +4,10 @@
   called only by :class:`loopid.algorithms.closed_loop.DelayedLoop` (through ``act``) and by the
   plant's one-step generative query, which is not a closed loop;
 - agent assembly: the agents (``linear_agent``, ``planning_agent``, ``ilqr_plan``) are built only
-  by :func:`loopid.experiments.model_planner.make_agent`, which every family calls, and by the
-  library's documented ``gym_agent`` (the paper's agent for a Gymnasium system).
+  by :func:`loopid.algorithms.agents.make_agent`, which every family calls (the helicopter's
+  assembly, and the observed systems' :mod:`loopid.algorithms.host_agent` that the Gymnasium
+  family and the round directories share), and by the library's documented ``gym_agent`` (the
+  paper's agent for a Gymnasium system).
 """
 
 import ast
@@ -60,9 +62,9 @@ def test_agents_are_assembled_in_one_place():
     for constructor in ("linear_agent", "planning_agent", "ilqr_plan"):
         places = _calls(constructor)
         assert {f for f, _ in places} <= {
-            "experiments/model_planner.py",
+            "algorithms/agents.py",
             "algorithms/gym_loop.py",
         }, (constructor, places)
         assert all(fn in ("make_agent", "gym_agent") for _, fn in places), (constructor, places)
-    for family in ("helicopter/assembly.py", "gym/agent.py"):
-        assert f"experiments/families/{family}" in _files(_calls("make_agent")), family
+    for caller in ("experiments/families/helicopter/assembly.py", "algorithms/host_agent.py"):
+        assert caller in _files(_calls("make_agent")), caller

@@ -76,8 +76,8 @@ def scenario_from_options(
     Fields come from the family's named scenario, then the --config file, then the --readings
     preset, then --set FIELD=VALUE, then the common options (--seeds, --iterations, ...): later
     ones win. An option whose field the family does not have is refused with one line."""
-    from loopid.experiments.config import parse_assignment
     from loopid.experiments.families import family_named
+    from loopid.settings.toml import parse_assignment
 
     family = family_named(name)
     fields, methods = family.read_file(config) if config is not None else ({}, None)

@@ -30,6 +30,7 @@ PACKAGES = [
     "loopid.algorithms.exploration",
     "loopid.experiments.families.mdp.theory",
     "loopid.algorithms",
+    "loopid.settings",
     "loopid.experiments",
     "loopid.rounds",
 ]

@@ -14,11 +14,11 @@ import numpy as np
 import pytest
 
 from loopid.experiments import artifacts, chunks
-from loopid.experiments.config import seeds_from_value, seeds_value
 from loopid.experiments.execute import run_cells
 from loopid.experiments.families import helicopter
 from loopid.experiments.families.helicopter.scenario import scenario
 from loopid.experiments.results import metadata, read_table
+from loopid.experiments.seeds import seeds_from_value, seeds_value
 
 SMALL = dict(iterations=3, samples=50, test_trajectories=10)
 

@@ -11,8 +11,8 @@ import pytest
 from loopid.algorithms.collect import policy_samples
 from loopid.algorithms.loop import run_learning
 from loopid.algorithms.loop_program import make_loop_program
+from loopid.algorithms.schedules import policy_fractions
 from loopid.control.value_iteration import occupancy
-from loopid.experiments.families.helicopter.methods import policy_fractions
 from loopid.experiments.families.mdp import MDP_SCENARIOS, mdp_figure, mdp_setup, run_mdp
 from loopid.experiments.families.mdp.agent import (
     DIAGNOSTICS,
@@ -98,7 +98,7 @@ def test_a_learner_that_is_not_no_regret_gives_a_larger_bound_not_a_violation():
         mode="geometric", gamma=s.gamma, diagnostics=diag,
     )  # fmt: skip
     trace = run_learning(
-        setup.plant, agent, setup.nu, policy_fractions("dagger-t", 10), range(4),
+        setup.plant, agent, setup.nu, policy_fractions("dagger", 10), range(4),
         samples=s.samples, n_test=1, mode="geometric", gamma=s.gamma, program=cell,
     )  # fmt: skip
     bound, j_best = _extra(trace, "bound"), _extra(trace, "j_best")

@@ -191,7 +191,7 @@ def test_bad_settings_on_the_command_line_are_one_line_exit_2(cache, tmp_path):
 def test_the_report_says_which_model_class_makes_a_regret_claim():
     """report.md's note per scenario (model_planner.describe): the MLP's rows make no regret
     claim, the feature model's and the linear model's are convex online learning."""
-    from loopid.experiments.model_planner import describe
+    from loopid.settings.model_planner import describe
 
     assert "no regret claim" in describe(swingup(model_kind="mlp"))
     assert "degree 4" in describe(swingup()) and "regret guarantee holds" in describe(swingup())

@@ -132,7 +132,7 @@ def test_a_full_disk_leaves_nothing_behind_when_nothing_finished(tmp_path, monke
 
 
 def test_a_failed_write_removes_its_temporary_file(tmp_path):
-    from loopid.experiments.results import replace_atomically
+    from loopid.files import replace_atomically
 
     def fails(tmp):
         tmp.write_bytes(b"part")

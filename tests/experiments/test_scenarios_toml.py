@@ -7,7 +7,6 @@ from importlib import resources
 
 import pytest
 
-from loopid.experiments import model_planner
 from loopid.experiments.families.helicopter.scenario import (
     FIELDS,
     SCENARIOS,
@@ -16,6 +15,7 @@ from loopid.experiments.families.helicopter.scenario import (
     read_config,
     scenario,
 )
+from loopid.settings import model_planner
 
 
 def packaged(name: str) -> dict:

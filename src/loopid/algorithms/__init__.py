@@ -5,12 +5,14 @@ Public means listed here and documented: every submodule below is part of the AP
 """
 
 __all__ = [
+    "agents",
     "closed_loop",
     "collect",
     "contracts",
     "expert",
     "gym_loop",
     "helicopter_plant",
+    "host_agent",
     "keys",
     "loop",
     "loop_program",
@@ -23,4 +25,5 @@ __all__ = [
     "policy_gradient",
     "policy_gradient_rollouts",
     "policy_gradient_step",
+    "schedules",
 ]

@@ -1,8 +1,7 @@
 """The delayed closed-loop step, written once: how a controller's change reaches the system under
 each reading of an actuation delay of d steps.
 
-Two readings (the scenario field ``delay_mode``,
-:mod:`loopid.experiments.families.helicopter.readings`):
+Two readings (the scenario field ``delay_mode``, one of the experiment's readings):
 
 - ``"fifo"``: the controller commands ``Δu_t = −K_t Δx_t`` from the current error and the system
   applies the change commanded d steps earlier (a FIFO of commands, zeros at the start). The

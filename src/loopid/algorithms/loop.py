@@ -303,8 +303,8 @@ def run_fixed_policy(
 #: The fewest seeds a compiled cell computes at once. XLA's CPU backend lowers a batch of one or
 #: two seeds differently from larger ones (measured: a seed's rows then differ in their last
 #: bits, which a diverging test trajectory amplifies), so :func:`at_least` pads smaller runs and a
-#: seed's numbers are the same however many seeds run beside it
-#: (:mod:`loopid.experiments.chunks`).
+#: seed's numbers are the same however many seeds run beside it (so the experiment pipeline may
+#: split seeds into chunks).
 MIN_SEEDS = 3
 
 

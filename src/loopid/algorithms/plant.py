@@ -291,7 +291,7 @@ def ordered_sum(x, axis: int = 0) -> jax.Array:
     of ``[21, b]`` differs in ~1 of 3 columns between b = 1400 and b = 2000 or 4000, and
     ``jnp.mean(c, axis=1)`` over the 100 columns of ``c [S, 100]`` changes from S = 41 on. Here
     every step is an elementwise add, which XLA does not reassociate, so a column's (a seed's) sum
-    is the same number in any batch (:mod:`loopid.experiments.chunks`).
+    is the same number in any batch (so the experiment pipeline may split seeds into chunks).
 
     Speed: an axis of at most :data:`_UNROLL` (a longer one first halved as whole arrays down to
     it) is unrolled into row slices (:func:`halving_sum`); elementwise adds of slices fuse into

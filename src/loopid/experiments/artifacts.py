@@ -33,7 +33,7 @@ from typing import NamedTuple
 
 import numpy as np
 
-from loopid.experiments.results import replace_atomically
+from loopid.files import replace_atomically
 
 #: The artifact format's version, in every ``.json``.
 FORMAT = 1

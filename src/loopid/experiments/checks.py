@@ -10,8 +10,8 @@ from typing import Any
 import numpy as np
 
 from loopid.experiments import chunks
-from loopid.experiments.config import seed_list
 from loopid.experiments.families import family_of
+from loopid.experiments.seeds import seed_list
 
 #: A scenario of any family (its config dataclass).
 Scenario = Any

@@ -76,14 +76,8 @@ import pyarrow as pa
 from loopid.algorithms.loop import MIN_SEEDS
 from loopid.experiments import backend
 from loopid.experiments.artifacts import Stacked
-from loopid.experiments.results import (
-    concat,
-    metadata,
-    read_table,
-    replace_atomically,
-    with_metadata,
-    write_atomic,
-)
+from loopid.experiments.results import concat, metadata, read_table, with_metadata
+from loopid.files import replace_atomically, write_atomic
 
 #: The default budget: this fraction of the machine's available memory (the rest is headroom for
 #: the estimate's error, compilation, Python and other programs).

@@ -13,7 +13,7 @@ from pathlib import Path
 import numpy as np
 import pyarrow as pa
 
-from loopid.experiments.results import write_atomic_bytes
+from loopid.files import write_atomic_bytes
 
 
 def _in_order(values) -> list[str]:

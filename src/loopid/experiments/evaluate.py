@@ -19,7 +19,8 @@ import pyarrow as pa
 import pyarrow.parquet as pq
 
 from loopid.experiments import artifacts
-from loopid.experiments.results import read_table, write_atomic
+from loopid.experiments.results import read_table
+from loopid.files import write_atomic
 
 SCHEMA = pa.schema(
     [

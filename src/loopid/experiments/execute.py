@@ -54,7 +54,6 @@ from loopid.experiments.checks import (
     check_writable,
     methods_of,
 )
-from loopid.experiments.config import seeds_value
 from loopid.experiments.executors import (
     Job,
     check_executor,
@@ -64,8 +63,9 @@ from loopid.experiments.executors import (
 )
 from loopid.experiments.families import Family, family_of, scenario_names
 from loopid.experiments.report import cell_times, report_text
-from loopid.experiments.results import with_metadata, write_atomic_bytes
+from loopid.experiments.results import with_metadata
 from loopid.experiments.rundir import RunDir, config_family, normalized
+from loopid.experiments.seeds import seeds_value
 from loopid.experiments.tasks import (
     ProgressFactory,
     lane_sets,
@@ -73,6 +73,7 @@ from loopid.experiments.tasks import (
     progress_bars,
     resplit,
 )
+from loopid.files import write_atomic_bytes
 
 #: A scenario of any family (its config dataclass).
 Scenario = Any
@@ -124,7 +125,7 @@ def run_cells(
 
     ``scenarios``: configs of one family. ``methods``: one list for every scenario, or
     ``{scenario name: list}``. ``seeds`` defaults to the first scenario's
-    (:func:`loopid.experiments.config.seed_list`; all scenarios of one run share the seeds).
+    (:func:`loopid.experiments.seeds.seed_list`; all scenarios of one run share the seeds).
     ``executor_name``: ``local`` or ``ray`` (``ray_address`` joins a cluster). ``workers``: the
     local executor's worker processes (1: in this process). ``memory``: the memory budget in GB
     of all the processes computing at once (default: :func:`loopid.experiments.chunks.budget`);

@@ -7,11 +7,10 @@ that hit the cap or a non-finite state), and the diagnostics of
 :class:`loopid.algorithms.contracts.Row` (``loss_nu``, ``loss_policy``, ``online_loss``,
 ``policy_samples``, ``valid_samples``, ``solver_converged``, ``spectral_radius``), then any
 system-specific diagnostics (:class:`loopid.algorithms.contracts.Diagnostics`, float64; +inf
-allowed, e.g. c_ν^π where ν misses mass). Files are written atomically (temporary name, then
-rename), so a killed run never leaves a half-written table.
+allowed, e.g. c_ν^π where ν misses mass). Tables are written atomically
+(:func:`loopid.files.write_atomic`), so a killed run never leaves a half-written table.
 """
 
-import os
 from pathlib import Path
 
 import numpy as np
@@ -63,30 +62,6 @@ def trace_table(scenario: str, method: str, trace: Trace) -> pa.Table:
     data = {f.name: pa.array(cols[f.name], type=f.type) for f in SCHEMA}
     data.update({name: pa.array(v, type=pa.float64()) for name, v in extra.items()})
     return pa.table(data, schema=schema)
-
-
-def replace_atomically(path, write) -> None:
-    """``write(tmp)`` to a temporary file beside ``path``, then rename it to ``path``: readers see
-    the old file or the whole new one, never a part. When writing fails (a full disk, an
-    interrupt) the temporary file is removed and the error raised: nothing is left behind."""
-    path = Path(path)
-    tmp = path.with_name(f".{path.name}.tmp-{os.getpid()}")
-    try:
-        write(tmp)
-        os.replace(tmp, path)
-    except BaseException:
-        tmp.unlink(missing_ok=True)
-        raise
-
-
-def write_atomic(table: pa.Table, path: Path) -> None:
-    """Write ``table`` to ``path`` atomically (:func:`replace_atomically`)."""
-    replace_atomically(path, lambda tmp: pq.write_table(table, tmp))
-
-
-def write_atomic_bytes(data: bytes, path: Path) -> None:
-    """Write ``data`` to ``path`` atomically (:func:`replace_atomically`)."""
-    replace_atomically(path, lambda tmp: tmp.write_bytes(data))
 
 
 def read_table(path: Path) -> pa.Table:

@@ -23,15 +23,10 @@ from pathlib import Path
 import pyarrow as pa
 import tomli_w
 
-from loopid.experiments.config import seeds_from_value, seeds_value
 from loopid.experiments.families import Family, family_called, scenario_names
-from loopid.experiments.results import (
-    concat,
-    metadata,
-    read_table,
-    replace_atomically,
-    write_atomic,
-)
+from loopid.experiments.results import concat, metadata, read_table
+from loopid.experiments.seeds import seeds_from_value, seeds_value
+from loopid.files import replace_atomically, write_atomic
 
 
 def to_toml(config: dict) -> str:

@@ -147,8 +147,8 @@ def sum_last(x) -> jax.Array:
     """``x [..., k] -> [...]``: the sum over the last axis in one fixed order, x₀ + x₁ + ... (k
     elementwise adds). ``jnp.sum`` over a short last axis is vectorised by XLA's CPU backend in a
     way that depends on how many rows there are, so under ``vmap`` a seed's sum could change in
-    its last bit with the number of seeds beside it; this one does not
-    (:mod:`loopid.experiments.chunks`)."""
+    its last bit with the number of seeds beside it; this one does not (so the experiment
+    pipeline may split seeds into chunks)."""
     x = jnp.asarray(x)
     total = x[..., 0]
     for i in range(1, x.shape[-1]):

@@ -8,8 +8,8 @@ transitions logged while π_n was deployed (the policy's rows and ν's, in the p
 update the model is the ridge fit on every row so far, regulariser λ/√(rows)), the new model is
 solved (LQR for the linear model; iLQR or MPC for the others) and π_{n+1} is written out.
 
-The agent is the Gymnasium family's (:func:`loopid.experiments.families.gym.agent.compiled_agent`,
-the same model class × learner × planner), and the losses are the loop's
+The agent is an observed system's (:func:`loopid.algorithms.host_agent.compiled_agent`, the
+same model class × learner × planner as a Gymnasium scenario's), and the losses are the loop's
 (:func:`loopid.algorithms.loop_program.batch_losses`): a round fed the transitions a
 ``loopid run gym`` iteration learned from gives that iteration's model and gains.
 """
@@ -21,9 +21,9 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from loopid.algorithms.host_agent import CompiledAgent, compiled_agent
 from loopid.algorithms.loop_program import batch_losses
-from loopid.experiments.families.gym.agent import CompiledAgent, compiled_agent
-from loopid.experiments.results import write_atomic
+from loopid.files import write_atomic
 from loopid.rounds import report
 from loopid.rounds.config import RoundsConfig, read_config
 from loopid.rounds.data import RoundData, read_round, transitions
@@ -53,7 +53,7 @@ class Update(NamedTuple):
 
 def _agent(config: RoundsConfig) -> CompiledAgent:
     try:
-        return compiled_agent(config, config.shape)
+        return compiled_agent(config.spec, config.shape)
     except (ValueError, TypeError) as err:
         raise ValueError(str(err).splitlines()[0]) from None
 
@@ -175,7 +175,8 @@ class Controller:
 
 def controller(root, n: int | None = None) -> Any:
     """Controller ``n`` (default the latest) of ``root`` as a :class:`Controller`; an MPC
-    controller is the gym family's MPC on the saved model (``act(obs [k, n_obs], t, index)``)."""
+    controller is the compiled agent's MPC on the saved model (``act(obs [k, n_obs], t,
+    index)``)."""
     arrays = controller_arrays(root, n)
     if str(arrays["kind"]) != "mpc":
         return Controller(arrays)

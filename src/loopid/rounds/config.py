@@ -1,9 +1,9 @@
 """A round directory's settings: :class:`RoundsConfig` and its TOML file format.
 
-``loopid round init DIR --config FILE`` reads a file of five tables. ``[cost]``, ``[model]`` and
-``[planner]`` are the Gymnasium family's (:mod:`loopid.experiments.families.gym.scenario`);
-``[system]`` replaces its ``[env]`` (there is no env: the system is run by a person) and
-``[rounds]`` its ``[run]``::
+``loopid round init DIR --config FILE`` reads a file of five tables. ``[model]`` and
+``[planner]`` are those of every observed system (:mod:`loopid.settings.observed`, as in a
+Gymnasium scenario's file); ``[system]`` takes the place of a Gymnasium env (there is no env: the
+system is run by a person) and ``[rounds]`` of the run's settings::
 
     [system]   states (names, n_obs of them), actions (names, m), target (o* [n_obs], required),
                action_op (a_op [m], default 0), horizon (steps of one episode, default 100),
@@ -17,28 +17,22 @@
     [rounds]   samples (m, transitions per round, default 200), method (dagger | batch |
                abbeel, default dagger), dagger_fraction (default 0.5)
 
-The coordinates are the gym family's: ``Δx = [o − o*; 1]`` (``n = n_obs + 1``), ``Δu = a − a_op``,
-and a linear controller acts ``a = a_op − K_t Δx``. A config is frozen and hashable, so the
-compiled agent of :func:`loopid.experiments.families.gym.agent.compiled_agent` is built from it
-exactly as from a gym scenario (the same model class, learner and planner).
+The coordinates are an observed system's (:class:`~loopid.algorithms.host_agent.EnvShape`):
+``Δx = [o − o*; 1]`` (``n = n_obs + 1``), ``Δu = a − a_op``, and a linear controller acts
+``a = a_op − K_t Δx``. A config is frozen and hashable; its agent is the compiled agent of
+:func:`loopid.algorithms.host_agent.compiled_agent`, built from :attr:`RoundsConfig.spec`
+exactly as a Gymnasium scenario's (the same model class, learner and planner).
 """
 
 from dataclasses import dataclass, fields
 from functools import cached_property
 from typing import Any
 
-from loopid.experiments import model_planner
-from loopid.experiments.config import (
-    Table,
-    check_choice,
-    check_int,
-    check_number,
-    freeze,
-    thaw,
-)
-from loopid.experiments.families.gym.env import EnvShape
-from loopid.experiments.families.gym.scenario import METHODS, check_model, read_file
-from loopid.experiments.families.gym.scenario import TABLES as GYM_TABLES
+from loopid.algorithms.host_agent import EnvShape, HostSpec
+from loopid.algorithms.schedules import SCHEDULES
+from loopid.settings import model_planner, observed
+from loopid.settings.checks import check_choice, check_int, check_number
+from loopid.settings.toml import freeze, read_tables, thaw
 
 
 @dataclass(frozen=True)
@@ -50,11 +44,12 @@ class RoundsConfig(model_planner.ModelPlanner):
       target, action_op: the operating point ``o*`` [n_obs] and action ``a_op`` [m].
       horizon: steps of one episode on the system (finite-horizon and time-varying solves).
       action_limit: the largest ``|Δu|`` a planner's plan may use (None: unbounded).
-      A, B: the initial model; time_varying, ftrl_lambda: the gym family's ``[model]`` fields.
+      A, B: the initial model; time_varying, ftrl_lambda: the ``[model]`` table's nominal
+        settings (:mod:`loopid.settings.observed`).
       Q, R: the quadratic cost the controller is designed for.
       samples, method, dagger_fraction: transitions per round, and how they are split between
-        the policy and ν (the gym methods).
-      planner_start, planner_cost: the gym family's ``[planner] start`` and ``cost``.
+        the policy and ν (a schedule of :mod:`loopid.algorithms.schedules`).
+      planner_start, planner_cost: the ``[planner]`` table's ``start`` and ``cost``.
     """
 
     states: Any
@@ -85,11 +80,10 @@ class RoundsConfig(model_planner.ModelPlanner):
         validate(self)
 
     @cached_property
-    def plain(self) -> dict[str, Any]:
-        """Every field as a plain TOML value (what the model, cost and planner are built from),
-        with ``env_id`` naming the system for the gym family's messages."""
-        return {"env_id": "[system]", **thaw(Table((f.name, getattr(self, f.name))
-                                                  for f in fields(self)))}  # fmt: skip
+    def spec(self) -> HostSpec:
+        """The settings its agent is built from (:func:`loopid.settings.observed.host_spec`,
+        the system named ``[system]`` in messages; not part of the config's value)."""
+        return observed.host_spec(self, "[system]")
 
     @property
     def n_obs(self) -> int:
@@ -136,18 +130,19 @@ def validate(c: RoundsConfig) -> None:
     if c.action_limit is not None:
         check_number("action_limit", c.action_limit, 0.0, open_low=True)
     check_int("samples", c.samples)
-    check_choice("method", c.method, METHODS)
+    check_choice("method", c.method, SCHEDULES)
     check_number("dagger_fraction", c.dagger_fraction, 0.0, 1.0)
-    check_model(c, c.horizon)
+    observed.check_model(c, c.horizon)
 
 
 SYSTEM_KEYS = ("states", "actions", "target", "action_op", "horizon", "action_limit", "A", "B")
-#: TOML table -> {key: field}; [cost], [model] and [planner] as the gym family's.
+#: TOML table -> {key: field}; [model] and [planner] as every observed system's (A and B are
+#: in [system]).
 TABLES = {
     "system": {k: k for k in SYSTEM_KEYS},
     "cost": {"Q": "Q", "R": "R"},
-    "model": {k: f for k, f in GYM_TABLES["model"].items() if k not in ("A", "B")},
-    "planner": GYM_TABLES["planner"],
+    "model": {k: f for k, f in observed.TABLES["model"].items() if k not in ("A", "B")},
+    "planner": observed.TABLES["planner"],
     "rounds": {"samples": "samples", "method": "method", "dagger_fraction": "dagger_fraction"},
 }
 _REQUIRED = {"system": ("states", "actions", "target"), "cost": ("Q", "R")}
@@ -155,8 +150,8 @@ _REQUIRED = {"system": ("states", "actions", "target"), "cost": ("Q", "R")}
 
 def read_config(path) -> RoundsConfig:
     """The :class:`RoundsConfig` of a TOML file; one-line ``ValueError`` naming an unknown or
-    missing table or key (the gym family's reader, with this format's tables), or a bad value."""
-    out, _ = read_file(path, TABLES, _REQUIRED)
+    missing table or key (:func:`loopid.settings.toml.read_tables`), or a bad value."""
+    out, _ = read_tables(path, TABLES, _REQUIRED)
     try:
         return RoundsConfig(**out)
     except (ValueError, TypeError) as err:

@@ -2,8 +2,8 @@
 
 After controller N is written, the next round is Algorithm 1's iteration N + 1: ``m`` transitions
 (``[rounds] samples``), of which ``round(p m)`` from running π_N and the rest from ν, with the
-method's policy fraction p (:func:`loopid.experiments.families.helicopter.methods.policy_fractions`:
-DAgger ``dagger_fraction``, ½ by default; Batch 0; Abbeel 0 in its first round, then 1).
+method's policy fraction p (:func:`loopid.algorithms.schedules.policy_fractions`: DAgger
+``dagger_fraction``, ½ by default; Batch 0; Abbeel 0 in its first round, then 1).
 
 Each update records one row of diagnostics (:func:`row`), all mean squared one-step prediction
 errors ``‖Δx' − f̂(Δx, Δu)‖²`` in the state's units squared:
@@ -28,9 +28,8 @@ richer model class.
 
 import numpy as np
 
-from loopid.experiments.families.gym.agent import design_cost
-from loopid.experiments.families.gym.scenario import FRACTIONS
-from loopid.experiments.families.helicopter.methods import policy_fractions
+from loopid.algorithms.host_agent import design_cost
+from loopid.algorithms.schedules import policy_fractions
 from loopid.rounds.config import RoundsConfig
 
 COLUMNS = ("loss_nu", "loss_policy", "loss_all", "relative", "online", "regret", "policy_cost")
@@ -40,7 +39,7 @@ HIGH = 0.1
 
 def split(config: RoundsConfig, n: int) -> tuple[int, int]:
     """``(policy rows, ν rows)`` to collect while controller ``n`` is deployed."""
-    p = policy_fractions(FRACTIONS[config.method], n + 1, dagger_fraction=config.dagger_fraction)
+    p = policy_fractions(config.method, n + 1, dagger_fraction=config.dagger_fraction)
     pol = round(float(p[n]) * config.samples)
     return pol, config.samples - pol
 
@@ -48,7 +47,7 @@ def split(config: RoundsConfig, n: int) -> tuple[int, int]:
 def row(config: RoundsConfig, n: int, data, **losses) -> dict:
     """The diagnostics of the update on ``data``, collected while controller ``n`` was deployed
     (``losses``: loss_nu, loss_policy, loss_all, relative, online, regret)."""
-    cost = design_cost(config.plain, config.shape)
+    cost = design_cost(config.spec, config.shape)
     pol = data.policy
     policy_cost = float(np.mean(cost(data.x[pol], data.u[pol]))) if pol.any() else None
     out = {

@@ -25,7 +25,7 @@ from typing import Any, NamedTuple
 import jax
 import numpy as np
 
-from loopid.experiments.results import replace_atomically
+from loopid.files import replace_atomically
 
 STATE = "state.npz"
 CONFIG = "config.toml"

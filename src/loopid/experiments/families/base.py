@@ -11,7 +11,7 @@ Every config dataclass has the fields ``name``, ``iterations``, ``samples`` and 
 count, or for families that accept one, a tuple of seeds), validates itself when it is built
 (``ValueError`` naming the bad field), and offers ``replace(**changes)`` and ``to_dict()`` (plain
 TOML values; ``None`` left out). The helpers they share (checks, reading a ``--config`` file,
-``--set key=value``) are in :mod:`loopid.experiments.config`.
+``--set key=value``) are in :mod:`loopid.settings.checks` and :mod:`loopid.settings.toml`.
 """
 
 from abc import ABC, abstractmethod

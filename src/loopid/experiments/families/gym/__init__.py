@@ -16,8 +16,8 @@ One module per idea:
 - :mod:`.scenario`: :class:`GymScenario`, its checks and its TOML file (:func:`read_file`,
   :func:`build`);
 - :mod:`.env`: the one place an env is built and closed (:func:`make_system`);
-- :mod:`.agent`: the cost, the nominal model and the agent, compiled once per scenario;
-- :mod:`.setup`: the :class:`Setup` every entry point builds once, :func:`run`, :func:`check`,
+- :mod:`.setup`: the :class:`Setup` every entry point builds once (the env, ν, the test cost
+  and the compiled agent of :mod:`loopid.algorithms.host_agent`), :func:`run`, :func:`check`,
   :func:`shared`;
 - :mod:`.saved`: saved policies reloaded, evaluated and filmed (:func:`load`,
   :func:`evaluate`, :func:`animate`);
@@ -25,8 +25,7 @@ One module per idea:
 """
 
 from loopid.experiments.families.base import Family
-from loopid.experiments.families.gym.agent import CompiledAgent, compiled_agent
-from loopid.experiments.families.gym.env import EnvShape, EnvSpec, env_shape, make_system
+from loopid.experiments.families.gym.env import EnvSpec, env_shape, make_system
 from loopid.experiments.families.gym.figures import figure, report, trajectories
 from loopid.experiments.families.gym.saved import animate, evaluate, load, saved_policy
 from loopid.experiments.families.gym.scenario import (
@@ -71,8 +70,6 @@ __all__ = [
     "FIELDS",
     "METHODS",
     "TABLES",
-    "CompiledAgent",
-    "EnvShape",
     "EnvSpec",
     "GymFamily",
     "GymScenario",
@@ -80,7 +77,6 @@ __all__ = [
     "animate",
     "build",
     "check",
-    "compiled_agent",
     "env_shape",
     "evaluate",
     "figure",

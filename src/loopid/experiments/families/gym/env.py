@@ -5,7 +5,8 @@ The scenario's ``[env]`` table and its cost's ``target`` and ``action_op`` fix t
 ``Δu = a − a_op`` (``m`` actions). :func:`make_system` builds the vector env the loop steps
 (:class:`~loopid.systems.from_gymnasium.GymSystem`, close it), :func:`opened_system` the same
 inside a ``with`` block that closes it, :func:`rendering_env` one plain env drawing
-``rgb_array`` frames. :class:`EnvShape` is what the compiled agent needs to know of the env.
+``rgb_array`` frames. :func:`env_shape` is what the compiled agent needs to know of the env
+(:class:`~loopid.algorithms.host_agent.EnvShape`).
 """
 
 from collections.abc import Iterator
@@ -15,6 +16,7 @@ from typing import NamedTuple
 import gymnasium
 import numpy as np
 
+from loopid.algorithms.host_agent import EnvShape
 from loopid.experiments.families.gym.scenario import GymScenario
 from loopid.systems.from_gymnasium import GymSystem
 
@@ -71,25 +73,8 @@ def rendering_env(s: GymScenario) -> gymnasium.Env:
     return gymnasium.make(e.env_id, render_mode="rgb_array", **e.env_kwargs)
 
 
-class EnvShape(NamedTuple):
-    """What the compiled agent depends on besides the scenario (hashable): the sizes ``n``,
-    ``n_obs``, ``m``, the horizon in steps, the target ``o*`` [n_obs], the operating action
-    ``a_op`` [m], the observed entries, and ``u_limit``: the largest ``|Δu|`` every action
-    entry may take inside the action box (a planner keeps its plan inside it; None when the
-    box is unbounded or ``a_op`` sits on its edge)."""
-
-    n: int
-    n_obs: int
-    m: int
-    horizon: int
-    target: tuple
-    a_op: tuple
-    observe: tuple | None = None
-    u_limit: float | None = None
-
-
 def env_shape(system: GymSystem) -> EnvShape:
-    """The :class:`EnvShape` of a built env."""
+    """The :class:`~loopid.algorithms.host_agent.EnvShape` of a built env."""
     room = np.minimum(system.high - system.a_op, system.a_op - system.low)
     u_limit = float(room.min()) if np.all(np.isfinite(room)) and room.min() > 0 else None
     observe = None if system.observe is None else tuple(int(i) for i in system.observe)

@@ -12,10 +12,10 @@ from pathlib import Path
 import numpy as np
 import pyarrow as pa
 
-from loopid.experiments import model_planner
 from loopid.experiments.families.gym.scenario import METHODS
 from loopid.experiments.report import final_cost_sections
-from loopid.experiments.results import write_atomic_bytes
+from loopid.files import write_atomic_bytes
+from loopid.settings import model_planner
 
 
 def _pyplot():

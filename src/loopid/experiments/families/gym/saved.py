@@ -13,12 +13,13 @@ from pathlib import Path
 
 import numpy as np
 
+from loopid.algorithms import agents
 from loopid.algorithms.gym_loop import EVALUATE, test_episodes
-from loopid.experiments import model_planner
 from loopid.experiments.artifacts import tested_gains
 from loopid.experiments.families.gym.scenario import GymScenario
 from loopid.experiments.families.gym.setup import Setup, gym_setup
 from loopid.models.linear_offset import LinearOffsetModel
+from loopid.settings import model_planner
 
 
 def saved_controller(setup: Setup, arrays: dict):
@@ -39,7 +40,8 @@ def saved_controller(setup: Setup, arrays: dict):
         if "W" in arrays:
             model = LinearModel(nominal, arrays["W"])
         else:
-            fmap = model_planner.feature_map(setup.scenario, nominal.n, nominal.m)
+            spec = model_planner.specs(setup.scenario).model
+            fmap = agents.feature_map(spec, nominal.n, nominal.m)
             model = FeatureModel(nominal, fmap, arrays["W_features"])
     return model, GainController(tested_gains(arrays), error, np.asarray(setup.shape.a_op))
 

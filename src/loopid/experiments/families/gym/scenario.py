@@ -22,9 +22,10 @@ it differs)::
     [run]          methods (dagger | batch | abbeel), iterations, samples, seeds (a count or a
                    list), test_trajectories, dagger_fraction, test_policy ("last" | "best")
 
-A scenario is frozen and hashable (lists kept as tuples, tables as :class:`Table` s) so that
-the compiled agent can be cached on it; :attr:`GymScenario.plain` gives every field back as a
-plain TOML value, the one place the experiment's code un-freezes them (once per scenario).
+A scenario is frozen and hashable (lists kept as tuples, tables as :class:`Table` s), and so
+are the settings its agent is built from (:attr:`GymScenario.spec`), on which the compiled agent
+is cached; :attr:`GymScenario.plain` gives every field back as a plain TOML value (what the env,
+the test cost and ν are built from), computed once per scenario.
 Checks that need no env are made when a scenario is built (:func:`validate`); those that need
 its sizes, when its :class:`~loopid.experiments.families.gym.setup.Setup` is built.
 """
@@ -35,21 +36,14 @@ from typing import Any
 
 import numpy as np
 
-from loopid.experiments import model_planner
-from loopid.experiments.config import (
-    Table,
-    check_choice,
-    check_int,
-    check_number,
-    freeze,
-    read_toml,
-    replaced,
-    thaw,
-)
+from loopid.algorithms.host_agent import HostSpec
+from loopid.algorithms.schedules import SCHEDULES
+from loopid.settings import model_planner, observed
+from loopid.settings.checks import check_choice, check_int, check_number, replaced
+from loopid.settings.toml import Table, freeze, read_tables, thaw
 
-METHODS = ("dagger", "batch", "abbeel")
-#: The helicopter method whose p_n schedule each gym method follows.
-FRACTIONS = {"dagger": "dagger-t", "batch": "batch-t", "abbeel": "abbeel"}
+#: Each method follows the schedule of its name (:mod:`loopid.algorithms.schedules`).
+METHODS = SCHEDULES
 _TABLE_FIELDS = ("env_kwargs", "reset_options")
 _NO_TABLE = Table()
 
@@ -72,7 +66,7 @@ class GymScenario(model_planner.ModelPlanner):
       gain, policy, nominal, action_std: ν (exactly one of the first three) and its noise.
       A, B, time_varying, ftrl_lambda: the nominal model and the FTRL regulariser.
       model_*, planner_*: the model class and the optimal-control solver
-        (:mod:`loopid.experiments.model_planner`; default a linear model and LQR).
+        (:mod:`loopid.settings.model_planner`; default a linear model and LQR).
       test_policy: the policy tested at each iteration: ``last`` (the paper's) or ``best``, the
         best so far, selected on episodes of its own
         (:func:`loopid.algorithms.gym_loop.run_learning_host`; gains only, not under ``mpc``).
@@ -123,10 +117,16 @@ class GymScenario(model_planner.ModelPlanner):
     @cached_property
     def plain(self) -> dict[str, Any]:
         """Every field as a plain TOML value (tuples back to lists, tables to dicts, ``None``
-        kept): what the env, the cost, the model and ν are built from. Computed once per
-        scenario, in one call of :func:`~loopid.experiments.config.thaw`; read it, do not
+        kept): what the env, the test cost and ν are built from. Computed once per
+        scenario, in one call of :func:`~loopid.settings.toml.thaw`; read it, do not
         change it (it is not part of the scenario's value: equality and hashing ignore it)."""
         return thaw(Table((f.name, getattr(self, f.name)) for f in fields(self)))
+
+    @cached_property
+    def spec(self) -> HostSpec:
+        """The settings its agent is built from (:func:`loopid.settings.observed.host_spec`;
+        computed once per scenario and, like :attr:`plain`, not part of its value)."""
+        return observed.host_spec(self, self.env_id)
 
     def replace(self, **changes) -> "GymScenario":
         """A copy with ``changes``; unknown fields and bad values raise ``ValueError``."""
@@ -188,21 +188,7 @@ def validate(s: GymScenario) -> None:
         raise ValueError(
             f"planner_kind 'mpc' flies the last policy only, got test_policy {s.test_policy!r}"
         )
-    check_model(s, s.horizon)
-
-
-def check_model(s, horizon: int | None) -> None:
-    """``ValueError`` naming the first bad ``[model]`` or ``[planner]`` field of ``s`` (a gym
-    scenario, or any config with the same fields: :mod:`loopid.rounds.config`)."""
-    if not isinstance(s.time_varying, bool):
-        raise ValueError(f"time_varying must be true or false, got {s.time_varying!r}")
-    check_number("ftrl_lambda", s.ftrl_lambda, 0.0)
-    model_planner.validate(s, horizon)
-    if s.time_varying and s.model_kind != "linear":
-        raise ValueError(
-            f"time_varying applies to the linear model; model_kind {s.model_kind!r} learns one "
-            "model for every step"
-        )
+    observed.check_model(s, s.horizon)
 
 
 #: TOML table -> {key: field} (the file format of the module docstring).
@@ -219,11 +205,7 @@ TABLES = {
     "exploration": {
         "gain": "gain", "policy": "policy", "nominal": "nominal", "action_std": "action_std",
     },
-    "model": {
-        "A": "A", "B": "B", "time_varying": "time_varying", "lambda": "ftrl_lambda",
-        **{k: f"model_{k}" for k in model_planner.TABLES["model"]},
-    },
-    "planner": {k: f"planner_{k}" for k in (*model_planner.TABLES["planner"], "start", "cost")},
+    **observed.TABLES,
     "run": {
         "methods": None, "iterations": "iterations", "samples": "samples", "seeds": "seeds",
         "test_trajectories": "test_trajectories", "dagger_fraction": "dagger_fraction",
@@ -233,42 +215,11 @@ TABLES = {
 _REQUIRED = {"env": ("id",), "cost": ("target", "Q", "R"), "exploration": ()}
 
 
-def read_file(path, tables=None, required=None) -> tuple[dict, list[str] | None]:
+def read_file(path) -> tuple[dict, list[str] | None]:
     """A gym TOML file as ``(fields, methods or None)``; one-line ``ValueError`` naming an
-    unknown or missing table or key (values are checked when the scenario is built).
-    ``tables``, ``required``: another file format of the same kind (default :data:`TABLES`
-    and the gym file's required keys; :mod:`loopid.rounds.config` reads its file so)."""
-    tables = TABLES if tables is None else tables
-    required = _REQUIRED if required is None else required
-    raw = read_toml(path)
-    where = f"--config {str(path)!r}"
-    out: dict = {}
-    methods = None
-    for table, given in raw.items():
-        if table not in tables:
-            raise ValueError(f"{where}: unknown table [{table}]; allowed: {', '.join(tables)}")
-        if not isinstance(given, dict):
-            raise ValueError(f"{where}: {table} must be a table, got {given!r}")
-        for key, value in given.items():
-            if key not in tables[table]:
-                raise ValueError(
-                    f"{where}: unknown key {table}.{key}; allowed: {', '.join(tables[table])}"
-                )
-            if tables[table][key] is None:
-                methods = value
-            else:
-                out[tables[table][key]] = value
-    for table, keys in required.items():
-        if table not in raw:
-            raise ValueError(f"{where}: missing table [{table}]")
-        for key in keys:
-            if key not in raw[table]:
-                raise ValueError(f"{where}: missing key {table}.{key}")
-    if methods is not None and (
-        not isinstance(methods, list) or not methods or not all(isinstance(m, str) for m in methods)
-    ):
-        raise ValueError(f"{where}: run.methods must be a non-empty list, got {methods!r}")
-    return out, methods
+    unknown or missing table or key (values are checked when the scenario is built;
+    :func:`loopid.settings.toml.read_tables` with :data:`TABLES`)."""
+    return read_tables(path, TABLES, _REQUIRED)
 
 
 def build(name: str, changes: dict) -> GymScenario:

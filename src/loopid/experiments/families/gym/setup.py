@@ -2,11 +2,11 @@
 
 :func:`gym_setup` opens the scenario's env (:mod:`.env`) and builds everything a cell or a saved
 policy needs from it: the env's sizes and coordinates, the compiled agent
-(:mod:`loopid.experiments.families.gym.agent`, cached across calls), ν and the test cost. ``run``
-(one cell), ``check``, ``shared``, ``load``, ``evaluate``, ``trajectories`` and ``animate`` all take
-that one object; the env is closed when the ``with`` block ends. Every problem found while building
-it (a size that does not fit the env, a ``module:function`` that does not import) is one line of
-``ValueError``.
+(:func:`loopid.algorithms.host_agent.compiled_agent`, cached across calls), ν and the test
+cost. ``run`` (one cell), ``check``, ``shared``, ``load``, ``evaluate``, ``trajectories`` and
+``animate`` all take that one object; the env is closed when the ``with`` block ends. Every
+problem found while building it (a size that does not fit the env, a ``module:function`` that
+does not import) is one line of ``ValueError``.
 
 Methods: ``dagger`` (p_n = ``dagger_fraction``), ``batch`` (p_n = 0), ``abbeel`` (ν's data at
 n = 2, then the policy's), run by :func:`loopid.algorithms.gym_loop.run_learning_host`.
@@ -20,19 +20,20 @@ import numpy as np
 
 from loopid.algorithms.contracts import Trace
 from loopid.algorithms.gym_loop import Exploration, run_learning_host
-from loopid.experiments.config import seed_list
-from loopid.experiments.families.base import Progress
-from loopid.experiments.families.gym.agent import (
+from loopid.algorithms.host_agent import (
     CompiledAgent,
+    EnvShape,
     checked,
     compiled_agent,
     design_cost,
     import_callable,
-    nominal,
+    nominal_model,
 )
-from loopid.experiments.families.gym.env import EnvShape, env_shape, opened_system
-from loopid.experiments.families.gym.scenario import FRACTIONS, METHODS, GymScenario
-from loopid.experiments.families.helicopter.methods import policy_fractions
+from loopid.algorithms.schedules import policy_fractions
+from loopid.experiments.families.base import Progress
+from loopid.experiments.families.gym.env import env_shape, opened_system
+from loopid.experiments.families.gym.scenario import METHODS, GymScenario
+from loopid.experiments.seeds import seed_list
 from loopid.systems.from_gymnasium import GymSystem
 from loopid.systems.gym_policies import CallablePolicy, OpenLoopPolicy
 
@@ -44,9 +45,9 @@ class Setup(NamedTuple):
       scenario: the :class:`GymScenario`; values: its fields as plain values
         (:attr:`~.scenario.GymScenario.plain`).
       system: the open env (:class:`~loopid.systems.from_gymnasium.GymSystem`), the loop's plant.
-      shape: its sizes and coordinates (:class:`~.env.EnvShape`).
+      shape: its sizes and coordinates (:class:`~loopid.algorithms.host_agent.EnvShape`).
       compiled: the agent, its compiled host loop program and controller
-        (:class:`~.agent.CompiledAgent`).
+        (:class:`~loopid.algorithms.host_agent.CompiledAgent`).
       exploration: ν (:class:`~loopid.algorithms.gym_loop.Exploration`).
       test_cost: an :class:`~loopid.systems.gym_cost.ObservationCost`, ``"reward"`` or a
         callable ``cost(obs, action)``.
@@ -83,12 +84,12 @@ def gym_setup(s: GymScenario) -> Iterator[Setup]:
             exploration = Exploration(nu, float(v["action_std"]))
             # the test cost: the [cost] table's quadratic, the env's own reward, or a callable
             if v["test_cost"] == "quadratic":
-                test_cost = design_cost(v, shape)
+                test_cost = design_cost(s.spec, shape)
             elif v["test_cost"] == "reward":
                 test_cost = "reward"
             else:
                 test_cost = import_callable(v["test_cost"], "cost.test")
-            compiled = compiled_agent(s, shape)
+            compiled = compiled_agent(s.spec, shape)
         except (ValueError, TypeError) as err:
             raise ValueError(str(err).splitlines()[0]) from None
         yield Setup(s, v, system, shape, compiled, exploration, test_cost)
@@ -103,14 +104,12 @@ def check(s: GymScenario) -> None:
 
 def run(method: str, s: GymScenario, seeds=None, progress: Progress | None = None) -> Trace:
     """Run ``method`` (:data:`~.scenario.METHODS`) on every seed (default
-    :func:`~loopid.experiments.config.seed_list`): ``N = iterations`` rows per seed."""
+    :func:`~loopid.experiments.seeds.seed_list`): ``N = iterations`` rows per seed."""
     if method not in METHODS:
         raise ValueError(f"unknown gym method {method!r}; choose from {', '.join(METHODS)}")
     with gym_setup(s) as setup:
         seeds = seed_list(s) if seeds is None else np.asarray(seeds)
-        fractions = policy_fractions(
-            FRACTIONS[method], s.iterations, dagger_fraction=s.dagger_fraction
-        )
+        fractions = policy_fractions(method, s.iterations, dagger_fraction=s.dagger_fraction)
         return run_learning_host(
             setup.system, setup.compiled.agent, setup.exploration, fractions,
             [int(x) for x in seeds], samples=s.samples, n_test=s.test_trajectories,
@@ -123,5 +122,5 @@ def run(method: str, s: GymScenario, seeds=None, progress: Progress | None = Non
 def shared(s: GymScenario, method: str) -> dict:
     """The nominal model ``A``, ``B`` every seed's learned offsets add to."""
     with gym_setup(s) as setup:
-        model = nominal(setup.values, setup.shape)
+        model = nominal_model(s.spec, setup.shape)
     return {"A": np.asarray(model.A), "B": np.asarray(model.B)}

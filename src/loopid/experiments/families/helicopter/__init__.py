@@ -20,8 +20,6 @@ report: the final costs with each panel's readings of the details the paper leav
 evaluated, flown and animated (:mod:`loopid.experiments.families.helicopter.saved`).
 """
 
-from loopid.experiments import model_planner
-from loopid.experiments.config import read_flat_file
 from loopid.experiments.families.base import Family
 from loopid.experiments.families.helicopter import methods as M
 from loopid.experiments.families.helicopter import readings
@@ -50,6 +48,8 @@ from loopid.experiments.families.helicopter.saved import (
     trajectories,
 )
 from loopid.experiments.families.helicopter.scenario import FIELDS, SCENARIOS, Scenario, scenario
+from loopid.settings import model_planner
+from loopid.settings.toml import read_flat_file
 
 
 class HelicopterFamily(Family):

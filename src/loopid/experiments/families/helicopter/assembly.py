@@ -16,16 +16,17 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from loopid.algorithms import agents
 from loopid.algorithms.contracts import Agent, LoopProgram
 from loopid.algorithms.exploration import Centre, make_nus, planned_flight
 from loopid.algorithms.keys import seed_keys
 from loopid.algorithms.loop_program import make_loop_program
 from loopid.algorithms.plant import Plant
-from loopid.experiments import model_planner
 from loopid.experiments.families.helicopter import plant as core
 from loopid.experiments.families.helicopter.expert import expert_gains
 from loopid.experiments.families.helicopter.scenario import Scenario
 from loopid.models.linear_offset import LinearOffsetModel
+from loopid.settings import model_planner
 from loopid.systems import helicopter
 from loopid.systems.tasks import make_task
 
@@ -39,9 +40,9 @@ class Setup(NamedTuple):
         linearisation about the target,
         :func:`loopid.experiments.families.helicopter.expert.expert_gains`).
       nominal: the initial model every learned offset adds to.
-      model: the ``model_*`` model class (:func:`loopid.experiments.model_planner.model_class`),
+      model: the ``model_*`` model class (:func:`loopid.algorithms.agents.model_class`),
         or None for the paper's linear offset model.
-      agent: the model-based agent (:func:`loopid.experiments.model_planner.make_agent`).
+      agent: the model-based agent (:func:`loopid.algorithms.agents.make_agent`).
       nus: the ν samplers ``[ν_t, ν_e, ν_en]`` (:data:`loopid.algorithms.exploration.NU_KINDS`).
       program: the one compiled loop program that DAgger, Batch and Abbeel share, whichever ν
         they draw from (a traced switch).
@@ -102,12 +103,13 @@ def _setup(key: Scenario) -> Setup:
     # step; the funnel's time-varying nominal is kept) is planned by iLQR on the task's
     # quadratic cost from the task's start, over the task horizon (under ``mpc`` too: its gains
     # are what the cell saves; MPC flies)
-    paper = model_planner.is_paper_agent(key)
-    model = None if paper else model_planner.model_class(key, nominal)
-    agent = model_planner.make_agent(
-        key, nominal, task.Q, task.R, plant.horizon,
+    spec = model_planner.specs(key)
+    paper = agents.is_paper_agent(spec)
+    model = None if paper else agents.model_class(spec.model, spec.learner, nominal)
+    agent = agents.make_agent(
+        spec, nominal, task.Q, task.R, plant.horizon,
         start=helicopter.to_error(jnp.asarray(task.x0), jnp.asarray(task.target)[0]),
-        U0=np.zeros((plant.horizon, helicopter.N_ACTION)), alternatives=alternatives, model=model,
+        U0=np.zeros((plant.horizon, helicopter.N_ACTION)), model=model,
     )  # fmt: skip
     nus = make_nus(
         plant, K_expert, state_var=key.nu_state_var, action_var=key.nu_action_var,

@@ -68,7 +68,7 @@ def trajectories_figure(panels: list[tuple], path) -> Path:
     matplotlib.use("Agg", force=True)
     import matplotlib.pyplot as plt
 
-    from loopid.experiments.results import write_atomic_bytes
+    from loopid.files import write_atomic_bytes
 
     fig, grid = plt.subplots(
         len(panels), 2, figsize=(11, 4.0 * len(panels)), squeeze=False, layout="constrained"

@@ -18,6 +18,8 @@ they have their own runners with the same call shape.
 
 import numpy as np
 
+from loopid.algorithms import schedules
+
 METHODS = (
     "dagger-t",
     "dagger-e",
@@ -50,15 +52,10 @@ def nu_kind(method: str) -> str | None:
 
 
 def policy_fractions(method: str, iterations: int, *, dagger_fraction: float = 0.5) -> np.ndarray:
-    """``[iterations]`` policy fractions ``p_n`` (entry 0, iteration 1, collects nothing)."""
+    """``[iterations]`` policy fractions ``p_n`` (entry 0, iteration 1, collects nothing): the
+    schedule the method follows (:func:`loopid.algorithms.schedules.policy_fractions`)."""
     check_method(method)
     if method not in LEARNING_METHODS:
         raise ValueError(f"{method!r} does not learn a model, it has no policy fractions")
-    if not 0.0 <= dagger_fraction <= 1.0:
-        raise ValueError(f"dagger_fraction must lie in [0, 1], got {dagger_fraction!r}")
-    p = np.zeros(iterations)
-    if method.startswith("dagger-"):
-        p[1:] = dagger_fraction
-    elif method == "abbeel":
-        p[2:] = 1.0
-    return p
+    schedule = method.split("-", 1)[0]  # dagger-* -> dagger, batch-* -> batch, abbeel
+    return schedules.policy_fractions(schedule, iterations, dagger_fraction=dagger_fraction)

@@ -6,9 +6,9 @@ from pathlib import Path
 import jax
 import numpy as np
 
+from loopid.algorithms import agents
 from loopid.algorithms.keys import EVALUATE, TEST, seed_keys, stream_key
 from loopid.algorithms.loop_program import noise_program
-from loopid.experiments import model_planner
 from loopid.experiments.artifacts import tested_gains
 from loopid.experiments.families.helicopter import methods as M
 from loopid.experiments.families.helicopter.assembly import scenario_plant, setup
@@ -16,6 +16,7 @@ from loopid.experiments.families.helicopter.findings import findings_section
 from loopid.experiments.families.helicopter.scenario import Scenario, readings_line
 from loopid.experiments.report import final_cost_sections
 from loopid.models.linear_offset import LinearOffsetModel
+from loopid.settings import model_planner
 from loopid.systems import helicopter
 from loopid.systems.tasks import is_hover
 
@@ -71,7 +72,7 @@ def load(s: Scenario, method: str, arrays: dict):
         if "W" in arrays:
             model = LinearModel(nominal, arrays["W"])
         else:
-            fmap = model_planner.feature_map(s, nominal.n, nominal.m)
+            fmap = agents.feature_map(model_planner.specs(s).model, nominal.n, nominal.m)
             model = FeatureModel(nominal, fmap, arrays["W_features"])
     return model, controller
 

@@ -21,8 +21,6 @@ from loopid.algorithms.loop_program import TEST_POLICIES
 from loopid.algorithms.plant import check_delay_reading
 from loopid.algorithms.policy_gradient_step import SAMPLES_MODES as PG_SAMPLES
 from loopid.algorithms.policy_gradient_step import UPDATES as PG_UPDATES
-from loopid.experiments import model_planner
-from loopid.experiments.config import check_int, check_number, read_flat_file, replaced
 from loopid.experiments.families.helicopter.readings import (
     DEFAULT_PRESET,
     NU_T_CENTERS,
@@ -31,6 +29,9 @@ from loopid.experiments.families.helicopter.readings import (
     reading_text,
     readings_line,
 )
+from loopid.settings import model_planner
+from loopid.settings.checks import check_int, check_number, replaced
+from loopid.settings.toml import read_flat_file
 from loopid.systems.funnel_nominal import FUNNEL_NOMINALS
 from loopid.systems.tasks import TASK_DELAYS, TASK_NAMES
 
@@ -72,7 +73,7 @@ class Scenario(model_planner.ModelPlanner):
         perturbation size in action units and first trust radius in probing radii (see
         :mod:`loopid.algorithms.policy_gradient`).
       model_*, planner_*: the model class and the optimal-control solver
-        (:mod:`loopid.experiments.model_planner`; default the paper's linear model and LQR).
+        (:mod:`loopid.settings.model_planner`; default the paper's linear model and LQR).
     """
 
     name: str

@@ -25,7 +25,6 @@ from pathlib import Path
 
 import pyarrow as pa
 
-from loopid.experiments.config import seeds_from_value
 from loopid.experiments.families.helicopter.readings import READING_FIELDS
 from loopid.experiments.families.helicopter.scenario import SCENARIOS, Scenario
 from loopid.experiments.families.helicopter.study_readings import (
@@ -44,6 +43,7 @@ from loopid.experiments.families.helicopter.study_report import (
     load,
     write_outputs,
 )
+from loopid.experiments.seeds import seeds_from_value
 
 __all__ = [
     "BY_ID",
@@ -133,8 +133,8 @@ def run_study(
     a ``ValueError`` raised before anything is written.
     """
     from loopid.experiments.execute import check_cells, resolved_config, run_cells
-    from loopid.experiments.results import write_atomic
     from loopid.experiments.rundir import RunDir
+    from loopid.files import write_atomic
 
     started = time.perf_counter() if started is None else started
     base = {name: s.replace(**changes) for name, s in SCENARIOS.items()}

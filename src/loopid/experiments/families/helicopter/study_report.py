@@ -32,7 +32,8 @@ from loopid.experiments.families.helicopter.study_readings import (
     relabel,
 )
 from loopid.experiments.paired import VERDICT_WORDS
-from loopid.experiments.results import concat, write_atomic_bytes
+from loopid.experiments.results import concat
+from loopid.files import write_atomic_bytes
 
 
 def _cells(table: pa.Table, panel: str, method: str) -> pa.Table:

@@ -13,9 +13,9 @@ Scenarios (:data:`MDP_SCENARIOS`):
 
 Methods (:data:`MDP_METHODS`): ``dagger`` (p_n = ½), ``batch`` (p_n = 0), ``abbeel`` (ν at
 n = 2, then the policy only); the fractions come from
-:func:`loopid.experiments.families.helicopter.methods.policy_fractions`. Policy draws are
-``geometric`` (exact draws from D_{μ,π}, the paper's analysis). Every method of a scenario shares
-one compiled loop program.
+:func:`loopid.algorithms.schedules.policy_fractions`. Policy draws are ``geometric`` (exact
+draws from D_{μ,π}, the paper's analysis). Every method of a scenario shares one compiled loop
+program.
 
 Extra result columns (:func:`loopid.experiments.families.mdp.agent.mdp_diagnostics`): ``j_policy``,
 ``j_best``, ``j_mixture``, ``j_optimal``, ``bound`` (Theorem 3.1 while all data came from ν,
@@ -30,7 +30,6 @@ figure, the report section and ``trajectories.png``).
 from dataclasses import fields
 
 from loopid.algorithms.loop import program_memory
-from loopid.experiments.config import read_flat_file
 from loopid.experiments.families.base import Family
 from loopid.experiments.families.mdp.figures import mdp_figure, report, trajectories
 from loopid.experiments.families.mdp.scenario import (
@@ -47,6 +46,7 @@ from loopid.experiments.families.mdp.scenario import (
     scenario_model,
     scenario_nu,
 )
+from loopid.settings.toml import read_flat_file
 
 
 class MDPFamily(Family):

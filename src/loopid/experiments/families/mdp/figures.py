@@ -138,7 +138,7 @@ def trajectories(run_dir, configs, path) -> None:
 
     from loopid.control.value_iteration import occupancy, value_iteration
     from loopid.experiments import artifacts
-    from loopid.experiments.results import write_atomic_bytes
+    from loopid.files import write_atomic_bytes
 
     cells = Path(run_dir) / "cells"
     panels = [(n, s) for n, s in configs.items() if list(cells.glob(f"{n}__*.json"))]

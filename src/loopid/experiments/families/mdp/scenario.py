@@ -15,13 +15,7 @@ import numpy as np
 from loopid.algorithms.contracts import LoopProgram, Row, Trace
 from loopid.algorithms.loop import at_least, run_learning
 from loopid.algorithms.loop_program import make_loop_program
-from loopid.experiments.config import (
-    check_choice,
-    check_int,
-    check_number,
-    replaced,
-)
-from loopid.experiments.families.helicopter import methods as M
+from loopid.algorithms.schedules import SCHEDULES, policy_fractions
 from loopid.experiments.families.mdp.agent import (
     classifier_model,
     counts_model,
@@ -31,10 +25,11 @@ from loopid.experiments.families.mdp.agent import (
     mdp_plant,
     policy_nu,
 )
+from loopid.settings.checks import check_choice, check_int, check_number, replaced
 from loopid.systems.mdp import TRAP_WALK, FiniteMDP, random_mdp, trap_mdp
 
-MDP_METHODS = ("dagger", "batch", "abbeel")
-_FRACTIONS = {"dagger": "dagger-t", "batch": "batch-t", "abbeel": "abbeel"}
+#: Each method follows the schedule of its name (:mod:`loopid.algorithms.schedules`).
+MDP_METHODS = SCHEDULES
 
 
 @dataclass(frozen=True)
@@ -194,7 +189,7 @@ def run_mdp(
         raise ValueError(f"unknown MDP method {method!r}; choose from {', '.join(MDP_METHODS)}")
     seeds = list(range(s.seeds)) if seeds is None else list(seeds)
     setup = mdp_setup(s)
-    fractions = M.policy_fractions(_FRACTIONS[method], s.iterations)
+    fractions = policy_fractions(method, s.iterations)
     return at_least(
         lambda padded: run_learning(
             setup.plant, setup.agent, setup.nu, fractions, padded, samples=s.samples, n_test=1,

@@ -1,4 +1,5 @@
-"""The ``[model]`` and ``[planner]`` settings every family shares: fields, defaults and checks.
+"""The ``[model]`` and ``[planner]`` settings every family shares: fields, defaults, checks and
+the agent specs they give.
 
 A scenario chooses its model class and its optimal-control solver (the paper's
 guarantee holds for any model class with a no-regret learner and any optimal-control solver)::
@@ -18,19 +19,25 @@ guarantee holds for any model class with a no-regret learner and any optimal-con
 In a config dataclass these are flat fields with a prefix (``model_kind``, ``model_degree``,
 ``planner_kind``, ...; :data:`FIELDS`), so ``--set model_kind=features`` works like any other
 field, and a TOML file may write them either flat or as the two tables above
-(:func:`loopid.experiments.config.flatten_tables` with :data:`TABLES`).
+(:func:`loopid.settings.toml.flatten_tables` with :data:`TABLES`).
 
 ``linear`` + ``lqr`` is the paper's agent (linear offset model, FTRL, LQR) and the default: a
 scenario that sets nothing here runs exactly as before. ``lqr`` needs the linear model (it solves
 a Riccati equation on (Â, B̂)); ``ilqr`` and ``mpc`` plan on any model by autodiff.
+
+:func:`specs` turns a config's fields into the frozen specs of
+:mod:`loopid.algorithms.agents`, whose :func:`~loopid.algorithms.agents.make_agent` builds the
+agent.
 """
 
 import dataclasses
 from dataclasses import dataclass
 from typing import Any
 
-from loopid.experiments.config import check_choice, check_int, check_number
+from loopid.algorithms.agents import AgentSpec, LearnerSpec, ModelSpec, PlannerSpec
 from loopid.models.feature_maps import DEFAULT_BANDWIDTH, DEFAULT_COUNT, DEFAULT_DEGREE
+from loopid.settings.checks import check_choice, check_int, check_number
+from loopid.settings.toml import freeze
 
 MODEL_KINDS = ("linear", "features", "mlp")
 FEATURE_MAPS = ("polynomial", "fourier")
@@ -135,83 +142,6 @@ def is_default(s) -> bool:
     return all(getattr(s, k) == v for k, v in DEFAULTS.items())
 
 
-def model_class(s, nominal):
-    """The :class:`~loopid.algorithms.planning_agent.ModelClass` of the config ``s``'s
-    ``model_*`` fields around the nominal model: ``linear`` is the feature model of degree 1
-    (the linear offset model, planned on by iLQR), ``features`` a polynomial or random Fourier
-    map learned by FTRL (λ = ``s.ftrl_lambda``), ``mlp`` the online MLP (``model_layers``
-    hidden layers of ``model_hidden`` units)."""
-    from loopid.algorithms.planning_agent import feature_model, mlp_model
-    from loopid.learners import ftrl_least_squares
-    from loopid.models.mlp import mlp_learner
-
-    n, m = nominal.n, nominal.m
-    if s.model_kind == "mlp":
-        learner = mlp_learner(
-            nominal, hidden=(s.model_hidden,) * s.model_layers, lr=s.model_learning_rate,
-            steps=s.model_steps, capacity=s.model_buffer,
-        )  # fmt: skip
-        return mlp_model(nominal, learner, seed=s.model_seed)
-    return feature_model(nominal, feature_map(s, n, m), ftrl_least_squares(s.ftrl_lambda))
-
-
-def is_paper_agent(s) -> bool:
-    """Whether the config ``s`` runs the paper's agent: the linear offset model learned by FTRL,
-    solved by LQR (its other model and planner fields then do not matter)."""
-    return s.model_kind == "linear" and s.planner_kind == "lqr"
-
-
-def make_agent(s, nominal, Q, R, horizon: int, *, start=None, U0=None, plan_cost=None,
-               alternatives=None, model=None):  # fmt: skip
-    """The agent of the config ``s``: its model class × learner × planner, the one place every
-    family assembles one (:class:`loopid.algorithms.contracts.Agent`).
-
-    - ``linear`` + ``lqr`` (the paper's): the linear offset model ``nominal`` learned by FTRL
-      (λ = ``s.ftrl_lambda``) and solved by (time-varying) LQR on ``Q [n, n]``, ``R [m, m]``
-      over ``horizon`` steps (:func:`loopid.algorithms.model_based.linear_agent`); the planning
-      arguments are not used.
-    - otherwise: the model class of ``s`` (:func:`model_class`; ``model``: one already made, so
-      that programs compiled for it are shared) planned by iLQR over ``horizon`` steps from the
-      error state ``start [n]``, first from the actions ``U0 [horizon, m]``, on ``plan_cost``
-      (default the quadratic cost of ``Q``, ``R``); with ``planner_kind = "ilqr"`` and a
-      ``planner_horizon``, the plan starts from an MPC episode of that window on the model,
-      which also tries the constant ``alternatives [k, m]``
-      (:func:`loopid.algorithms.planning_agent.ilqr_plan`).
-    """
-    if is_paper_agent(s):
-        from loopid.algorithms.model_based import linear_agent
-        from loopid.learners import ftrl_least_squares
-
-        return linear_agent(nominal, ftrl_least_squares(s.ftrl_lambda), Q, R, horizon)
-    from loopid.algorithms.planning_agent import ilqr_plan, planning_agent
-    from loopid.control import quadratic_cost
-
-    if s.planner_horizon is not None and s.planner_horizon > horizon:
-        raise ValueError(
-            f"planner_horizon {s.planner_horizon} is longer than the task's horizon {horizon}"
-        )
-    mc = model_class(s, nominal) if model is None else model
-    seed_horizon = s.planner_horizon if s.planner_kind == "ilqr" else None
-    plan = ilqr_plan(
-        mc, quadratic_cost(Q, R) if plan_cost is None else plan_cost, start, U0,
-        iterations=s.planner_iterations, seed_horizon=seed_horizon,
-        seed_alternatives=None if seed_horizon is None else alternatives,
-    )  # fmt: skip
-    return planning_agent(mc, plan)
-
-
-def feature_map(s, n: int, m: int):
-    """The feature map of the config ``s`` (``linear``: the degree-1 map) for sizes n, m: what
-    a saved ``W_features`` multiplies (:class:`loopid.experiments.learned.FeatureModel`)."""
-    from loopid.models.feature_maps import polynomial, random_fourier
-
-    if s.model_kind == "linear":
-        return polynomial(n, m, 1)
-    if s.model_features == "polynomial":
-        return polynomial(n, m, s.model_degree)
-    return random_fourier(n, m, s.model_count, s.model_bandwidth, s.model_seed)
-
-
 def describe(s) -> str:
     """One sentence for ``report.md``: the model class and the planner of the config ``s``, and
     for the MLP that its rows make no regret claim."""
@@ -232,3 +162,23 @@ def describe(s) -> str:
     every = f"MPC ({window}iLQR plans re-planned every {s.planner_every} steps)"
     planner = {"lqr": "LQR", "ilqr": "iLQR over the task horizon", "mpc": every}[s.planner_kind]
     return f"Model: {model}; planner: {planner}."
+
+
+def specs(s) -> AgentSpec:
+    """The :class:`~loopid.algorithms.agents.AgentSpec` of the config ``s`` (its :data:`FIELDS`
+    and ``ftrl_lambda``): what :func:`loopid.algorithms.agents.make_agent` builds the agent
+    from. Hashable (the alternatives frozen), so a family may key a cache on it."""
+    model = ModelSpec(
+        kind=s.model_kind, features=s.model_features, degree=s.model_degree,
+        count=s.model_count, bandwidth=s.model_bandwidth, seed=s.model_seed,
+        hidden=s.model_hidden, layers=s.model_layers,
+    )  # fmt: skip
+    learner = LearnerSpec(
+        ftrl_lambda=s.ftrl_lambda, learning_rate=s.model_learning_rate, steps=s.model_steps,
+        buffer=s.model_buffer,
+    )  # fmt: skip
+    planner = PlannerSpec(
+        kind=s.planner_kind, horizon=s.planner_horizon, iterations=s.planner_iterations,
+        every=s.planner_every, alternatives=freeze(s.planner_alternatives),
+    )  # fmt: skip
+    return AgentSpec(model, learner, planner)

@@ -1,75 +1,13 @@
-"""What every family's config shares: value checks with one-line errors, reading a ``--config``
-TOML file, ``--set key=value`` and hashable (frozen) TOML values.
+"""Settings in TOML: a ``--config`` file of flat keys or of tables, ``--set key=value``, and
+TOML values made hashable (frozen) so that a config can key a cache.
 
-Every error is a ``ValueError`` whose one line names the bad value and what is allowed.
+Every error is a ``ValueError`` whose one line names the file, the table or the key.
 """
 
-import dataclasses
-import math
 import tomllib
 from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
-
-import numpy as np
-
-
-def seed_list(config) -> np.ndarray:
-    """A config's seeds as an integer array: ``range(seeds)`` for a count, else the tuple."""
-    seeds = config.seeds
-    if isinstance(seeds, int | np.integer) and not isinstance(seeds, bool):
-        return np.arange(int(seeds))
-    return np.asarray(seeds, dtype=np.int64)
-
-
-def seeds_value(seeds) -> int | dict | list[int]:
-    """The seeds as ``config.toml`` records them: a count ``n`` for 0..n−1, ``{start, count}``
-    for another run of consecutive seeds, else the list (:func:`seeds_from_value` inverts it)."""
-    seeds = np.asarray(seeds, dtype=np.int64)
-    if seeds.size and np.array_equal(seeds, np.arange(seeds[0], seeds[0] + seeds.size)):
-        if seeds[0] == 0:
-            return int(seeds.size)
-        return {"start": int(seeds[0]), "count": int(seeds.size)}
-    return [int(s) for s in seeds]
-
-
-def seeds_from_value(value) -> np.ndarray:
-    """The seed array of a :func:`seeds_value` (or of an older ``config.toml``'s list)."""
-    if isinstance(value, dict):
-        return np.arange(value["start"], value["start"] + value["count"], dtype=np.int64)
-    if isinstance(value, int):
-        return np.arange(value, dtype=np.int64)
-    return np.asarray(value, dtype=np.int64)
-
-
-def replaced(config, changes: dict, what: str = "scenario"):
-    """A copy of the frozen dataclass ``config`` with ``changes`` (validated again by its
-    ``__post_init__``); unknown field names raise ``ValueError`` naming them."""
-    unknown = sorted(set(changes) - {f.name for f in dataclasses.fields(config)})
-    if unknown:
-        raise ValueError(f"unknown {what} field(s): {', '.join(unknown)}")
-    return dataclasses.replace(config, **changes)
-
-
-def check_int(name: str, v, minimum: int = 1) -> None:
-    """``ValueError`` unless ``v`` is an integer (not a bool) ``>= minimum``."""
-    if isinstance(v, bool) or not isinstance(v, int) or v < minimum:
-        raise ValueError(f"{name} must be an integer >= {minimum}, got {v!r}")
-
-
-def check_number(name: str, v, low: float, high: float = math.inf, *, open_low=False) -> None:
-    """``ValueError`` unless ``v`` is a finite number in ``[low, high]`` (``(low, high]``)."""
-    ok = isinstance(v, int | float) and not isinstance(v, bool) and math.isfinite(v)
-    ok = ok and (v > low if open_low else v >= low) and v <= high
-    if not ok:
-        bound = f"({low}, {high}]" if open_low else f"[{low}, {high}]"
-        raise ValueError(f"{name} must be a number in {bound}, got {v!r}")
-
-
-def check_choice(name: str, v, allowed: Sequence[str]) -> None:
-    """``ValueError`` unless ``v`` is one of ``allowed``."""
-    if not isinstance(v, str) or v not in allowed:
-        raise ValueError(f"{name} must be one of {', '.join(allowed)}, got {v!r}")
 
 
 def read_toml(path, what: str = "--config") -> dict:
@@ -109,6 +47,44 @@ def read_flat_file(
             f"--config {str(path)!r}: methods must be a list of names, got {methods!r}"
         )
     return cfg, methods
+
+
+def read_tables(path, tables: dict, required: dict) -> tuple[dict, list[str] | None]:
+    """A ``--config`` TOML of tables only, as ``(fields, methods or None)``.
+
+    ``tables``: ``{table: {key: field}}``, each key read as that config field, or as the list
+    of method names where its field is None (``[run] methods``); ``required``: ``{table:
+    keys}``, the tables and keys the file must have. One-line ``ValueError`` naming an unknown
+    or missing table or key (values are checked when the config is built)."""
+    raw = read_toml(path)
+    where = f"--config {str(path)!r}"
+    out: dict = {}
+    methods, methods_key = None, None
+    for table, given in raw.items():
+        if table not in tables:
+            raise ValueError(f"{where}: unknown table [{table}]; allowed: {', '.join(tables)}")
+        if not isinstance(given, dict):
+            raise ValueError(f"{where}: {table} must be a table, got {given!r}")
+        for key, value in given.items():
+            if key not in tables[table]:
+                raise ValueError(
+                    f"{where}: unknown key {table}.{key}; allowed: {', '.join(tables[table])}"
+                )
+            if tables[table][key] is None:
+                methods, methods_key = value, f"{table}.{key}"
+            else:
+                out[tables[table][key]] = value
+    for table, keys in required.items():
+        if table not in raw:
+            raise ValueError(f"{where}: missing table [{table}]")
+        for key in keys:
+            if key not in raw[table]:
+                raise ValueError(f"{where}: missing key {table}.{key}")
+    if methods is not None and (
+        not isinstance(methods, list) or not methods or not all(isinstance(m, str) for m in methods)
+    ):
+        raise ValueError(f"{where}: {methods_key} must be a non-empty list, got {methods!r}")
+    return out, methods
 
 
 def flatten_tables(raw: dict, tables: dict, where: str) -> dict:
