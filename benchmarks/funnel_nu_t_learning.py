@@ -15,6 +15,7 @@ import numpy as np
 
 import loopid  # noqa: F401  (float64)
 from funnel_nu_t_fit import CIRCLES, centre_of  # benchmarks/funnel_nu_t_fit.py
+from loopid.algorithms.contracts import LoopSpec
 from loopid.algorithms.exploration import nu_trajectory
 from loopid.algorithms.keys import iteration_keys, seed_keys
 from loopid.algorithms.loop import run_learning
@@ -79,10 +80,10 @@ def run_centres(st, centres, seeds, iterations: int, n_test: int, samples: int):
         )
         for c in centres
     ]
-    program = make_loop_program(
-        st.plant, st.agent, nus, samples=samples, iterations=iterations, n_test=n_test,
-        mode=sc.sampling, gamma=sc.gamma, test_policy="last",
-    )  # fmt: skip
+    loop = LoopSpec(
+        st.plant, st.agent, nus, samples=samples, n_test=n_test, mode=sc.sampling, gamma=sc.gamma
+    )
+    program = make_loop_program(loop, iterations)
     M, S = len(centres), len(seeds)
     keys = seed_keys(np.asarray(seeds))
     lane_keys = jnp.concatenate([keys] * M)
@@ -139,10 +140,10 @@ def check_against_scenarios(st, centres, seeds, iterations, n_test, samples, lan
         sc = scenario(c, iterations, n_test)
         own = assembly.setup(sc)
         fr = policy_fractions("dagger-t", iterations, dagger_fraction=sc.dagger_fraction)
+        own_loop = own.loop._replace(samples=samples, n_test=n_test)
         tr = run_learning(
-            own.plant, own.agent, own.nus, fr, seeds, samples=samples, n_test=n_test,
-            program=own.program, which=0, noise=own.test_noise(seeds),
-        )  # fmt: skip
+            own_loop, fr, seeds, which=0, program=own.program, noise=own.test_noise(seeds)
+        )
         same = all(
             np.array_equal(np.asarray(getattr(tr.rows, k)), lanes[m][k], equal_nan=True)
             for k in ROW_FIELDS

@@ -64,21 +64,20 @@ def bench(name: str, seeds: int, runs: int, block: int) -> None:
     s = scenario(name, seeds=seeds, iterations=ITERATIONS[name])
     key = H.program_key(s)
     st = assembly._setup(key)
-    plant, agent, nus, cell = st.plant, st.agent, st.nus, st.program
+    cell = st.program
     learning = [m for m in M.METHODS if m not in H.NOT_LANES]
     schedules = [M.policy_fractions(m, s.iterations) for m in learning]
     which = [NU_KINDS.index(M.nu_kind(m)) for m in learning]
     ids = np.arange(seeds)
     noise = cell.noise(seed_keys(ids))
-    options = dict(samples=s.samples, n_test=s.test_trajectories, mode=s.sampling, gamma=s.gamma,
-                   test_policy=s.test_policy, program=cell, noise=noise)  # fmt: skip
+    options = dict(program=cell, noise=noise)
 
     def lanes(block=1):
-        return run_lanes(plant, agent, nus, schedules, ids, which=which, block=block, **options)
+        return run_lanes(st.loop, schedules, ids, which=which, block=block, **options)
 
     def one_at_a_time():
         return [
-            run_learning(plant, agent, nus, f, ids, which=w, **options)
+            run_learning(st.loop, f, ids, which=w, **options)
             for f, w in zip(schedules, which, strict=True)
         ]
 

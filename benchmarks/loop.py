@@ -22,6 +22,7 @@ import numpy as np
 import scipy.linalg
 
 import loopid  # noqa: F401  (float64)
+from loopid.algorithms.contracts import LoopSpec
 from loopid.algorithms.exploration import make_nu
 from loopid.algorithms.loop import run_learning
 from loopid.algorithms.loop_program import make_loop_program
@@ -57,14 +58,13 @@ def jax_cell():
         plant.horizon,
     )
     nu = make_nu("t", plant, expert_gains(task))
-    cell = make_loop_program(plant, agent, nu, samples=S.samples, iterations=S.iterations,
-                     n_test=S.test_trajectories)  # fmt: skip
+    loop = LoopSpec(plant, agent, nu, samples=S.samples, n_test=S.test_trajectories)
+    cell = make_loop_program(loop, S.iterations)
     fractions = M.policy_fractions(METHOD, S.iterations)
     seeds = np.arange(S.seeds)
 
     def go(iterations):
-        return run_learning(plant, agent, nu, fractions[:iterations], seeds, samples=S.samples,
-                            n_test=S.test_trajectories, program=cell)  # fmt: skip
+        return run_learning(loop, fractions[:iterations], seeds, program=cell)
 
     t0 = time.perf_counter()
     go(2)  # compiles start and step

@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 
 from loopid.algorithms.collect import policy_samples
+from loopid.algorithms.contracts import LoopSpec
 from loopid.algorithms.exploration import make_nu, nu_expert, nu_trajectory
 from loopid.algorithms.keys import seed_keys
 from loopid.algorithms.loop import run_fixed_policy, run_learning
@@ -107,11 +108,11 @@ def test_bad_plant_and_loop_options(plant):
     with pytest.raises(ValueError, match="'sideways'"):
         policy_samples(plant, K, jax.random.key(0), 3, mode="sideways")
     with pytest.raises(ValueError, match="'worst'"):
-        make_loop_program(plant, None, None, samples=1, iterations=2, n_test=1, test_policy="worst")
+        make_loop_program(LoopSpec(plant, None, None, 1, 1, test_policy="worst"), 2)
     with pytest.raises(ValueError, match=re.escape("1.2")):
-        run_learning(plant, None, None, [0.0, 1.2], [0], samples=1, n_test=1)
+        run_learning(LoopSpec(plant, None, None, samples=1, n_test=1), [0.0, 1.2], [0])
     with pytest.raises(ValueError, match="iterations"):
-        run_learning(plant, None, None, [], [0], samples=1, n_test=1)
+        run_learning(LoopSpec(plant, None, None, samples=1, n_test=1), [], [0])
     with pytest.raises(ValueError, match="-1"):
         run_fixed_policy(plant, K, [-1], iterations=1, samples=1, n_test=1)
     tr = plant.rollout(K, jax.random.key(0))

@@ -15,6 +15,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
+from loopid.algorithms.contracts import LoopSpec
 from loopid.algorithms.exploration import nu_expert, nu_trajectory
 from loopid.algorithms.keys import seed_keys
 from loopid.algorithms.loop_program import eval_noise, make_loop_program
@@ -131,7 +132,7 @@ def _dagger_model(delay_mode: str):
     learner = ftrl_least_squares(1e-3)
     agent = linear_agent(nominal, learner, task.Q, task.R, HORIZON)
     nu = nu_trajectory(plant, state_var=0.25, action_var=0.25)
-    program = make_loop_program(plant, agent, nu, samples=100, iterations=ITERATIONS, n_test=10)
+    program = make_loop_program(LoopSpec(plant, agent, nu, samples=100, n_test=10), ITERATIONS)
     keys = seed_keys(np.arange(3))
     noise = eval_noise(plant, keys, 10, "last")
     carry, _ = program.start(keys, noise)

@@ -93,14 +93,9 @@ def test_a_learner_that_is_not_no_regret_gives_a_larger_bound_not_a_violation():
     broken = MDPModel(frozen, *good[1:4], "frozen")
     agent = mdp_agent(setup.mdp, broken)
     diag = mdp_diagnostics(setup.mdp, setup.nu_dist, broken)
-    cell = make_loop_program(
-        setup.plant, agent, setup.nu, samples=s.samples, iterations=10, n_test=1,
-        mode="geometric", gamma=s.gamma, diagnostics=diag,
-    )  # fmt: skip
-    trace = run_learning(
-        setup.plant, agent, setup.nu, policy_fractions("dagger", 10), range(4),
-        samples=s.samples, n_test=1, mode="geometric", gamma=s.gamma, program=cell,
-    )  # fmt: skip
+    loop = setup.loop._replace(agent=agent)
+    cell = make_loop_program(loop, 10, diagnostics=diag)
+    trace = run_learning(loop, policy_fractions("dagger", 10), range(4), program=cell)
     bound, j_best = _extra(trace, "bound"), _extra(trace, "j_best")
     assert np.all(j_best <= bound + 1e-9)
     good_bound = _extra(_runs("mdp-trap")["dagger"], "bound")[:4, :10]

@@ -11,7 +11,7 @@ import pytest
 
 from conftest import tree_allclose
 from loopid.algorithms import loop
-from loopid.algorithms.contracts import EvalNoise
+from loopid.algorithms.contracts import EvalNoise, LoopSpec
 from loopid.algorithms.loop import iteration_block, program_memory, run_lanes, run_learning
 from loopid.algorithms.loop_program import lane_noise, make_loop_program
 from loopid.experiments.families.helicopter.methods import policy_fractions
@@ -39,25 +39,18 @@ def lanes():
     _, second = policy_nu(mdp, np.tile([0.8, 0.2], (5, 1)))
     model = counts_model(5, 2)
     plant, agent = mdp_plant(mdp, 15), mdp_agent(mdp, model)
-    cell = make_loop_program(
-        plant, agent, [explicit_nu(mdp, uniform), second], samples=SAMPLES,
-        iterations=ITERATIONS, n_test=1, mode="geometric", gamma=0.9,
-        diagnostics=mdp_diagnostics(mdp, uniform, model),
-    )  # fmt: skip
+    nus = [explicit_nu(mdp, uniform), second]
+    loop = LoopSpec(plant, agent, nus, samples=SAMPLES, n_test=1, mode="geometric", gamma=0.9)
+    cell = make_loop_program(loop, ITERATIONS, diagnostics=mdp_diagnostics(mdp, uniform, model))
 
     def run(methods, iterations=ITERATIONS, **options):
         schedules = [policy_fractions(m, iterations) for m, _ in methods]
-        return run_lanes(
-            plant, agent, None, schedules, SEEDS, samples=SAMPLES, n_test=1, mode="geometric",
-            gamma=0.9, program=cell, which=[w for _, w in methods], **options,
-        )  # fmt: skip
+        which = [w for _, w in methods]
+        return run_lanes(loop, schedules, SEEDS, which=which, program=cell, **options)
 
     def alone(method):
         m, w = method
-        return run_learning(
-            plant, agent, None, policy_fractions(m, ITERATIONS), SEEDS, samples=SAMPLES,
-            n_test=1, mode="geometric", gamma=0.9, program=cell, which=w,
-        )  # fmt: skip
+        return run_learning(loop, policy_fractions(m, ITERATIONS), SEEDS, which=w, program=cell)
 
     return run, alone, cell
 
@@ -157,6 +150,6 @@ def test_lane_noise_repeats_each_seed_method_major():
 
 def test_schedules_must_be_methods_by_iterations():
     with pytest.raises(ValueError, match="schedules must be"):
-        run_lanes(None, None, None, [0.5, 0.5], SEEDS, samples=1, n_test=1)
+        run_lanes(LoopSpec(None, None, None, samples=1, n_test=1), [0.5, 0.5], SEEDS)
     with pytest.raises(ValueError, match="policy fractions must lie in"):
-        run_lanes(None, None, None, [[0.5, 1.5]], SEEDS, samples=1, n_test=1)
+        run_lanes(LoopSpec(None, None, None, samples=1, n_test=1), [[0.5, 1.5]], SEEDS)

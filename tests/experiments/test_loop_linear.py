@@ -15,6 +15,7 @@ import numpy as np
 import pytest
 
 from conftest import tree_allclose
+from loopid.algorithms.contracts import LoopSpec
 from loopid.algorithms.exploration import nu_trajectory
 from loopid.algorithms.keys import seed_keys
 from loopid.algorithms.loop import run_learning
@@ -60,9 +61,8 @@ class LinearSetup:
         self.nu = nu_trajectory(self.plant, state_var=0.25, action_var=0.25)
         self.keys = seed_keys(SEEDS)
         self.noise = eval_noise(self.plant, self.keys, N_TEST, "last")
-        self.cell = make_loop_program(
-            self.plant, self.agent, self.nu, samples=SAMPLES, iterations=ITERATIONS, n_test=N_TEST
-        )
+        self.loop = LoopSpec(self.plant, self.agent, self.nu, samples=SAMPLES, n_test=N_TEST)
+        self.cell = make_loop_program(self.loop, ITERATIONS)
         self._runs = {}
 
     def run(self, method: str):
@@ -168,9 +168,7 @@ def test_run_learning_matches_cell_and_is_deterministic(lin):
     shared compiled cell) reproduces bit for bit the rows driven by hand earlier."""
     fractions = M.policy_fractions("dagger-t", ITERATIONS)
     cell = lin.cell
-    a = run_learning(
-        lin.plant, lin.agent, lin.nu, fractions, SEEDS, samples=SAMPLES, n_test=N_TEST, program=cell
-    )
+    a = run_learning(lin.loop, fractions, SEEDS, program=cell)
     _, rows = lin.run("dagger-t")
     assert len(jax.tree_util.tree_leaves(a.rows)) >= 10
     assert tree_allclose(a.rows, rows, rtol=0.0, atol=0.0)

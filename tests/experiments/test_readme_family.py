@@ -137,7 +137,7 @@ def test_learners_reach_the_optimal_lqr_cost(example):
     """
     ns, home = example
     config = ns["LinearConfig"]()
-    plant = ns["setup"](config)[0]
+    plant = ns["setup"](config)[0].plant
     A, B = np.asarray(config.A), np.asarray(config.B)
     Q, R = np.eye(A.shape[0]), 0.1 * np.eye(B.shape[1])  # the guide task's cost
     P = scipy.linalg.solve_discrete_are(A, B, Q, R)

@@ -10,7 +10,8 @@ cell returns.
   iterations and what it ended with.
 - :class:`Diagnostics`: an optional per-iteration hook for quantities only one system can
   compute.
-- :class:`LoopProgram`: the learning loop's compiled programs; :class:`EvalNoise`: the seeds' test
+- :class:`LoopSpec`: one learning loop's parts and protocol; :class:`LoopProgram`: its compiled
+  programs; :class:`EvalNoise`: the seeds' test
   noise in the layout the test rollouts read.
 - :class:`SharedSampler`: an exploration sampler ν that is a drawing function shared with other
   samplers, at its own parameter.
@@ -188,6 +189,36 @@ class Trace(NamedTuple):
         iteration = np.arange(1, len(rows) + 1)
         final = None if final is None else {k: np.asarray(v) for k, v in final.items()}
         return cls(np.asarray(seeds), iteration, (iteration - 1) * samples, stacked, final)
+
+
+class LoopSpec(NamedTuple):
+    """One learning loop: its parts and its protocol (Algorithm 1), what
+    :func:`~loopid.algorithms.loop_program.make_loop_program` compiles and
+    :func:`~loopid.algorithms.loop.run_lanes` runs on every seed.
+
+    - ``plant``: the real system (:class:`LoopPlant`); ``agent``: model class, learner and
+      solver (:class:`Agent`).
+    - ``nu``: the exploration distribution ν, a sampler ``(key, m) -> Transitions``, or a list
+      of them that each lane picks from by index (``which``), or None where a compiled program
+      already holds them.
+    - ``samples``: transitions collected per iteration (the paper's m); ``n_test``: test
+      trajectories per evaluation.
+    - ``mode``: how the policy's share of a batch is drawn (``trajectory``: uniformly among
+      the steps of whole rollouts; ``geometric``: one step per rollout, stopped at step k with
+      probability ∝ ``gamma``^k: exact draws from the discounted state distribution
+      ``D_{μ,π}``); ``gamma``: that discount.
+    - ``test_policy``: the policy each iteration tests: the ``last`` one fitted, the ``best``
+      so far (on a second noise set), or the uniform ``mixture`` of all so far.
+    """
+
+    plant: Any
+    agent: Any
+    nu: Any
+    samples: int
+    n_test: int
+    mode: str = "trajectory"
+    gamma: float = 0.99
+    test_policy: str = "last"
 
 
 class LoopProgram(NamedTuple):

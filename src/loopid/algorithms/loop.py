@@ -20,16 +20,14 @@ import jax.numpy as jnp
 import numpy as np
 
 from loopid.algorithms.contracts import (
-    Agent,
     EvalNoise,
     LoopPlant,
     LoopProgram,
+    LoopSpec,
     Row,
     Trace,
 )
-from loopid.algorithms.keys import (
-    seed_keys,
-)
+from loopid.algorithms.keys import seed_keys
 from loopid.algorithms.loop_program import (
     eval_noise,
     first_iteration,
@@ -106,62 +104,47 @@ def program_memory(
 
 
 def run_learning(
-    plant: LoopPlant,
-    agent: Agent,
-    nu,
+    spec: LoopSpec,
     fractions,
     seeds,
     *,
-    samples: int,
-    n_test: int,
-    mode: str = "trajectory",
-    gamma: float = 0.99,
-    test_policy: str = "last",
-    progress: Callable[[int, Row], None] | None = None,
-    program: LoopProgram | None = None,
     which: int = 0,
+    program: LoopProgram | None = None,
     noise: EvalNoise | None = None,
+    progress: Callable[[int, Row], None] | None = None,
 ) -> Trace:
-    """Run one learning method for ``len(fractions)`` iterations on every seed
-    (:func:`run_lanes` with one method).
+    """Run one learning method of the loop ``spec`` (:class:`~loopid.algorithms.contracts.LoopSpec`)
+    for ``len(fractions)`` iterations on every seed (:func:`run_lanes` with one method).
 
     ``fractions[n−1]`` is the probability ``p_n`` that a slot of iteration n's batch comes from
     the policy (``fractions[0]`` is unused: iteration 1 collects nothing). ``progress(n, row)`` is
     called after each iteration with that iteration's :class:`Row` (leaves ``[S]``).
-    ``program``: a :class:`LoopProgram` from :func:`make_loop_program` with the same arguments,
+    ``program``: a :class:`LoopProgram` from :func:`make_loop_program` of the same ``spec``,
     to reuse its compilation across methods (DAgger, Batch, Abbeel) and calls; ``which`` picks
     the ν of a list. ``noise``: the seeds' :class:`EvalNoise` (default: the program's
     ``noise(keys)``).
     """
     return run_lanes(
-        plant, agent, nu, [fractions], seeds, samples=samples, n_test=n_test, mode=mode,
-        gamma=gamma, test_policy=test_policy, progress=progress, program=program,
-        which=[which], noise=noise,
-    )[0]  # fmt: skip
+        spec, [fractions], seeds, which=[which], program=program, noise=noise, progress=progress
+    )[0]
 
 
 def run_lanes(
-    plant: LoopPlant,
-    agent: Agent,
-    nu,
+    spec: LoopSpec,
     schedules,
     seeds,
     *,
-    samples: int,
-    n_test: int,
-    mode: str = "trajectory",
-    gamma: float = 0.99,
-    test_policy: str = "last",
-    progress: Callable[[int, Row], None] | None = None,
-    program: LoopProgram | None = None,
     which: Sequence[int] = (0,),
+    program: LoopProgram | None = None,
     noise: EvalNoise | None = None,
     block: int = 1,
+    progress: Callable[[int, Row], None] | None = None,
 ) -> list[Trace]:
-    """Run M learning methods on every seed as one *lane set*: the lanes are the (method, seed)
-    pairs, ``M·S`` of them, method-major, and every iteration of all of them is one call of the
-    program's ``step`` (with ``block``, a block of iterations one call of its ``steps``;
-    ``program``: as in :func:`run_learning`). Returns one :class:`Trace` per method.
+    """Run M learning methods of the loop ``spec`` on every seed as one *lane set*: the lanes
+    are the (method, seed) pairs, ``M·S`` of them, method-major, and every iteration of all of
+    them is one call of the program's ``step`` (with ``block``, a block of iterations one call
+    of its ``steps``; ``program``: as in :func:`run_learning`). Returns one :class:`Trace` per
+    method.
 
     A method is data: its row of ``schedules [M, N]`` (the policy fractions ``p_n``, as
     ``fractions`` of :func:`run_learning`) and its ν index ``which[m]``. Every draw depends on
@@ -190,10 +173,7 @@ def run_lanes(
     which = jnp.asarray(np.asarray(which, dtype=np.int32).reshape(methods))
     keys = seed_keys(seeds)
     if program is None:
-        program = make_loop_program(
-            plant, agent, nu, samples=samples, iterations=iterations, n_test=n_test, mode=mode,
-            gamma=gamma, test_policy=test_policy,
-        )  # fmt: skip
+        program = make_loop_program(spec, iterations)
     noise = lane_noise(program.noise(keys) if noise is None else noise, methods)
     block = iteration_block(iterations, block)
     if block > 1 and program.steps is not None:
@@ -207,18 +187,18 @@ def run_lanes(
         start = lambda: program.start(keys, noise, methods)  # noqa: E731
         carry, rows = drive(start, one, iterations, progress)
     final = {"K": carry.K}
-    if agent.params is not None:
-        final |= jax.vmap(agent.params)(carry.learner)
-    if test_policy == "best":
+    if spec.agent.params is not None:
+        final |= jax.vmap(spec.agent.params)(carry.learner)
+    if spec.test_policy == "best":
         final["best_K"] = carry.best_K
-    if test_policy == "mixture":
+    if spec.test_policy == "mixture":
         final["history"] = carry.history
     rows, final = jax.device_get((rows, final))  # to NumPy once, then each method's a view
     S = len(keys)
     return [
         Trace.from_rows(
             seeds,
-            samples,
+            spec.samples,
             [_lanes(row, m, S) for row in rows],
             {k: _lanes(v, m, S) for k, v in final.items()},
         )

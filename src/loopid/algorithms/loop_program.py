@@ -47,9 +47,9 @@ from loopid.algorithms.contracts import (
     EvalNoise,
     LoopPlant,
     LoopProgram,
+    LoopSpec,
     Row,
     SharedSampler,
-    Transitions,
 )
 from loopid.algorithms.keys import SELECT, TEST, iteration_keys, stream_key
 from loopid.algorithms.plant import noise_columns, ordered_sum
@@ -227,21 +227,15 @@ def _sampler_branches(nus: Sequence[Callable], samples: int):
 
 
 def make_loop_program(
-    plant: LoopPlant,
-    agent: Agent,
-    nu: Callable[[jax.Array, int], Transitions] | Sequence[Callable] | None,
-    *,
-    samples: int,
+    spec: LoopSpec,
     iterations: int,
-    n_test: int,
-    mode: str = "trajectory",
-    gamma: float = 0.99,
-    test_policy: str = "last",
+    *,
     diagnostics: Diagnostics | None = None,
     controller: Callable[[Any, jax.Array], Any] | None = None,
 ):
     """Build the :class:`~loopid.algorithms.contracts.LoopProgram` ``(start, step, noise, init,
-    steps)``, jitted, over all seeds at once.
+    steps)`` of the loop ``spec`` (:class:`~loopid.algorithms.contracts.LoopSpec`) over
+    ``iterations`` iterations, jitted, over all seeds at once.
 
     Collection and the learner's update are vmapped over seeds; the solve runs as the agent's
     ``policies`` says (default seed by seed, ``seeds_in_turn``) and the test trajectories of all
@@ -249,7 +243,7 @@ def make_loop_program(
 
     ``start(keys [S], noise) -> (carry, Row)`` solves and tests the initial model (iteration 1);
     ``step(carry, keys, noise, n, p, which=0) -> (carry, Row)`` runs iteration ``n`` with policy
-    fraction ``p``; ``noise`` is :func:`eval_noise` of the same keys. ``nu`` may be a list of
+    fraction ``p``; ``noise`` is :func:`eval_noise` of the same keys. ``spec.nu`` may be a list of
     samplers, of which ``which`` (traced, so one compiled program serves them all: ν_t, ν_e and
     ν_en, with DAgger, Batch and Abbeel) picks the one to draw from.
 
@@ -259,6 +253,7 @@ def make_loop_program(
     ``K`` is still what the cell keeps and saves. Only ``test_policy = "last"`` (the best and
     the mixture keep gains). Default: the plant flies ``K``.
     """
+    plant, agent, nu, samples, n_test, mode, gamma, test_policy = spec
     if test_policy not in TEST_POLICIES:
         raise ValueError(f"test_policy must be one of {TEST_POLICIES}, got {test_policy!r}")
     if controller is not None and test_policy != "last":

@@ -17,7 +17,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from loopid.algorithms import agents
-from loopid.algorithms.contracts import Agent, LoopProgram
+from loopid.algorithms.contracts import Agent, LoopProgram, LoopSpec
 from loopid.algorithms.exploration import Centre, make_nus, planned_flight
 from loopid.algorithms.keys import seed_keys
 from loopid.algorithms.loop_program import make_loop_program
@@ -51,6 +51,8 @@ class Setup(NamedTuple):
       replanner: MPC's settings (:func:`loopid.control.replanner`), else None.
       test_noise: ``test_noise(seeds)``, the test noise of a seed chunk (integer seeds;
         :class:`loopid.algorithms.contracts.EvalNoise`; :func:`_noise`).
+      loop: the learning loop the program compiles (:class:`loopid.algorithms.contracts.LoopSpec`:
+        the plant flown, the agent, the ν samplers and the scenario's protocol).
     """
 
     plant: Plant
@@ -63,6 +65,7 @@ class Setup(NamedTuple):
     mpc: Any
     replanner: Any
     test_noise: Callable[[tuple[int, ...]], Any]
+    loop: LoopSpec
 
 
 def program_key(s: Scenario) -> Scenario:
@@ -130,16 +133,19 @@ def _setup(key: Scenario) -> Setup:
         )  # fmt: skip
         flown = mpc_plant(plant, replan)
         controller = lambda state, K: model.params(state)  # noqa: E731
-    program = make_loop_program(
+    loop = LoopSpec(
         plant if flown is None else flown.plant, agent, nus, samples=key.samples,
-        iterations=key.iterations, n_test=key.test_trajectories, mode=key.sampling,
-        gamma=key.gamma, test_policy=key.test_policy, controller=controller,
+        n_test=key.test_trajectories, mode=key.sampling, gamma=key.gamma,
+        test_policy=key.test_policy,
     )  # fmt: skip
+    program = make_loop_program(loop, key.iterations, controller=controller)
 
     def test_noise(seeds):
         return _noise(key, tuple(int(seed) for seed in seeds))  # a hashable cache key
 
-    return Setup(plant, K_expert, nominal, model, agent, nus, program, flown, replan, test_noise)
+    return Setup(
+        plant, K_expert, nominal, model, agent, nus, program, flown, replan, test_noise, loop
+    )
 
 
 def nu_t_centre(reading: str, plant: Plant, K_expert: jax.Array) -> Centre | None:

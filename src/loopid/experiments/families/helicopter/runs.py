@@ -85,12 +85,15 @@ def run_lanes(
         M.policy_fractions(m, s.iterations, dagger_fraction=s.dagger_fraction) for m in methods
     ]
     traces = run_learning_lanes(
-        st.plant, st.agent, st.nus, schedules, padded, samples=s.samples,
-        n_test=s.test_trajectories, mode=s.sampling, gamma=s.gamma, test_policy=s.test_policy,
-        progress=progress, program=st.program,
-        which=[NU_KINDS.index(M.nu_kind(m)) for m in methods], noise=noise,
+        st.loop,
+        schedules,
+        padded,
+        which=[NU_KINDS.index(M.nu_kind(m)) for m in methods],
+        program=st.program,
+        noise=noise,
         block=backend.default_block(),
-    )  # fmt: skip
+        progress=progress,
+    )
     return cut_seeds(dict(zip(methods, traces, strict=True)), seeds)
 
 

@@ -12,7 +12,7 @@ from typing import NamedTuple
 import jax
 import numpy as np
 
-from loopid.algorithms.contracts import LoopProgram, Row, Trace
+from loopid.algorithms.contracts import LoopProgram, LoopSpec, Row, Trace
 from loopid.algorithms.loop import at_least, run_learning
 from loopid.algorithms.loop_program import make_loop_program
 from loopid.algorithms.schedules import SCHEDULES, policy_fractions
@@ -149,7 +149,9 @@ def scenario_model(s: MDPScenario, mdp: FiniteMDP):
 
 
 class MDPSetup(NamedTuple):
-    """Everything a scenario's methods share, including the compiled loop program."""
+    """Everything a scenario's methods share: the MDP, ν's distribution, the plant, the agent,
+    ν, the learning loop (``loop``: geometric draws, one exact test) and its compiled
+    program."""
 
     mdp: FiniteMDP
     nu_dist: np.ndarray
@@ -157,6 +159,7 @@ class MDPSetup(NamedTuple):
     agent: object
     nu: Callable
     program: LoopProgram
+    loop: LoopSpec
 
 
 @lru_cache(maxsize=8)
@@ -168,11 +171,9 @@ def mdp_setup(s: MDPScenario) -> MDPSetup:
     plant = mdp_plant(mdp, s.horizon)
     agent = mdp_agent(mdp, model)
     diag = mdp_diagnostics(mdp, dist, model)
-    program = make_loop_program(
-        plant, agent, nu, samples=s.samples, iterations=s.iterations, n_test=1,
-        mode="geometric", gamma=s.gamma, diagnostics=diag,
-    )  # fmt: skip
-    return MDPSetup(mdp, dist, plant, agent, nu, program)
+    loop = LoopSpec(plant, agent, nu, samples=s.samples, n_test=1, mode="geometric", gamma=s.gamma)
+    program = make_loop_program(loop, s.iterations, diagnostics=diag)
+    return MDPSetup(mdp, dist, plant, agent, nu, program, loop)
 
 
 def run_mdp(
@@ -192,8 +193,7 @@ def run_mdp(
     fractions = policy_fractions(method, s.iterations)
     return at_least(
         lambda padded: run_learning(
-            setup.plant, setup.agent, setup.nu, fractions, padded, samples=s.samples, n_test=1,
-            mode="geometric", gamma=s.gamma, progress=progress, program=setup.program,
+            setup.loop, fractions, padded, program=setup.program, progress=progress
         ),
         np.asarray(seeds),
     )  # fmt: skip

@@ -1,0 +1,22 @@
+"""The helicopter's methods follow the generic p_n schedules number for number; the expert and
+the policy gradient have none."""
+
+import pytest
+
+from loopid.algorithms.schedules import SCHEDULES, policy_fractions
+from loopid.experiments.families.helicopter import methods as M
+
+
+@pytest.mark.parametrize("method", M.LEARNING_METHODS)
+def test_every_learning_method_follows_its_schedule(method):
+    schedule = method.split("-")[0]
+    assert schedule in SCHEDULES
+    for f in (0.0, 0.3, 1.0):
+        a = M.policy_fractions(method, 6, dagger_fraction=f)
+        b = policy_fractions(schedule, 6, dagger_fraction=f)
+        assert a.dtype == b.dtype and a.tobytes() == b.tobytes()
+
+
+def test_a_method_that_learns_no_model_has_no_schedule():
+    with pytest.raises(ValueError, match="'expert' does not learn a model"):
+        M.policy_fractions("expert", 3)
