@@ -31,7 +31,7 @@ from loopid.algorithms import planning_agent as P
 from loopid.algorithms.model_based import linear_agent
 from loopid.control import quadratic_cost
 from loopid.learners import ftrl_least_squares
-from loopid.models import feature_model as F
+from loopid.models import feature_maps as F
 from loopid.models.mlp import mlp_learner
 
 
@@ -138,6 +138,14 @@ def model_class(model: ModelSpec, learner: LearnerSpec, nominal) -> P.ModelClass
     return P.feature_model(nominal, fmap, ftrl_least_squares(learner.ftrl_lambda))
 
 
+def paper_agent(nominal, ftrl_lambda: float, Q, R, horizon: int):
+    """The paper's agent: the linear offset model ``nominal`` (``A [(T,) n, n]``,
+    ``B [(T,) n, m]``) learned by FTRL least squares with regulariser ``ftrl_lambda`` and solved
+    by (time-varying) LQR on ``Q [n, n]``, ``R [m, m]`` over ``horizon`` steps
+    (:func:`loopid.algorithms.model_based.linear_agent`)."""
+    return linear_agent(nominal, ftrl_least_squares(ftrl_lambda), Q, R, horizon)
+
+
 def make_agent(spec: AgentSpec, nominal, Q, R, horizon: int, *, start=None, U0=None,
                plan_cost=None, model=None):  # fmt: skip
     """The agent of ``spec`` (:class:`loopid.algorithms.contracts.Agent`).
@@ -155,7 +163,7 @@ def make_agent(spec: AgentSpec, nominal, Q, R, horizon: int, *, start=None, U0=N
       (:func:`loopid.algorithms.planning_agent.ilqr_plan`).
     """
     if is_paper_agent(spec):
-        return linear_agent(nominal, ftrl_least_squares(spec.learner.ftrl_lambda), Q, R, horizon)
+        return paper_agent(nominal, spec.learner.ftrl_lambda, Q, R, horizon)
     planner = spec.planner
     if planner.horizon is not None and planner.horizon > horizon:
         raise ValueError(

@@ -42,6 +42,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from loopid.algorithms.agents import paper_agent
 from loopid.algorithms.contracts import Agent, Row, Trace, Transitions
 from loopid.algorithms.keys import (
     HOST_EVALUATE,
@@ -54,9 +55,7 @@ from loopid.algorithms.keys import (
 )
 from loopid.algorithms.loop import drive
 from loopid.algorithms.loop_program import learning_step
-from loopid.algorithms.model_based import linear_agent
 from loopid.algorithms.transitions import draw
-from loopid.learners import ftrl_least_squares
 from loopid.models.linear_offset import LinearOffsetModel
 from loopid.systems.from_gymnasium import GymSystem
 from loopid.systems.gym_cost import ObservationCost
@@ -102,15 +101,16 @@ def gym_nominal_model(system: GymSystem, A=None, B=None, *, time_varying: bool =
 
 
 def gym_agent(system: GymSystem, cost: ObservationCost, model: LinearOffsetModel, *, lam=1e-3):
-    """The model-based agent: ``model`` + FTRL(λ) + LQR (time-varying LQR for a time-varying
-    model) on the cost's ``Q`` (zero on the constant coordinate) and ``R``."""
+    """The paper's agent (:func:`loopid.algorithms.agents.paper_agent`) for ``system``: ``model``
+    + FTRL(λ) + LQR (time-varying LQR for a time-varying model) on the cost's ``Q`` (zero on the
+    constant coordinate) and ``R``, over the system's horizon."""
     Q, R = cost.augmented()
     if Q.shape[0] != system.n or R.shape[0] != system.m:
         raise ValueError(
             f"cost is for {Q.shape[0] - 1} observations and {R.shape[0]} actions, "
             f"the system has {system.n_obs} and {system.m}"
         )
-    return linear_agent(model, ftrl_least_squares(lam), Q, R, system.horizon)
+    return paper_agent(model, lam, Q, R, system.horizon)
 
 
 def slot_seeds(seed: int, n: int, stream: int, count: int) -> list[int]:
