@@ -27,11 +27,10 @@ PACKAGES = [
     "loopid.learners",
     "loopid.models",
     "loopid.systems",
-    "loopid.algorithms.exploration",
-    "loopid.experiments.families.mdp.theory",
     "loopid.algorithms",
     "loopid.settings",
     "loopid.experiments",
+    "loopid.experiments.families.mdp.theory",  # a module with its own __all__
     "loopid.rounds",
 ]
 

@@ -1,6 +1,8 @@
-"""The experiment pipeline above the loop: scenarios and their readings, families of systems,
-run directories with resume and atomic files, executors (local workers, Ray, accelerators),
-reports, figures, saved models and controllers, and the readings study.
+"""The experiment pipeline above the loop: run directories with resume and atomic files, cells,
+executors (local workers, Ray, accelerators), reports, learning curves, saved models and
+controllers; and the families of systems it runs (:mod:`loopid.experiments.families`: the
+helicopter of the paper's Figure 2 with its readings study, finite MDPs, Gymnasium envs), which
+it reaches only through their registry.
 
 Public means listed here and documented: every submodule below is part of the API.
 """
@@ -10,23 +12,18 @@ __all__ = [
     "backend",
     "checks",
     "chunks",
+    "commands",
+    "costs",
+    "curves",
     "evaluate",
     "execute",
     "executors",
     "families",
-    "findings",
-    "flights",
     "learned",
-    "plots",
-    "readings",
     "report",
     "results",
     "rundir",
     "saved",
-    "scenarios",
     "seeds",
-    "study",
-    "study_readings",
-    "study_report",
     "tasks",
 ]
