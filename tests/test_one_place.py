@@ -61,10 +61,7 @@ def test_a_systems_step_is_called_only_by_the_delayed_loop_and_the_one_step_quer
 def test_agents_are_assembled_in_one_place():
     for constructor in ("linear_agent", "planning_agent", "ilqr_plan"):
         places = _calls(constructor)
-        assert {f for f, _ in places} <= {
-            "algorithms/agents.py",
-            "algorithms/gym_loop.py",
-        }, (constructor, places)
-        assert all(fn in ("make_agent", "gym_agent") for _, fn in places), (constructor, places)
+        assert {f for f, _ in places} <= {"algorithms/agents.py"}, (constructor, places)
+        assert all(fn in ("make_agent", "paper_agent") for _, fn in places), (constructor, places)
     for caller in ("experiments/families/helicopter/assembly.py", "algorithms/host_agent.py"):
         assert caller in _files(_calls("make_agent")), caller

@@ -19,7 +19,7 @@ from loopid.settings import model_planner
 
 
 def packaged(name: str) -> dict:
-    folder = resources.files("loopid.experiments") / "scenarios"
+    folder = resources.files("loopid.experiments.families.helicopter") / "scenarios"
     return tomllib.loads((folder / f"{name}.toml").read_text(encoding="utf-8"))
 
 
