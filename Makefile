@@ -4,7 +4,7 @@ PYTHON ?= python3
 VENV := .venv
 PY := $(VENV)/bin/python
 
-.PHONY: reproduce test test-fast lint bench docs clean
+.PHONY: reproduce test test-fast test-science lint bench docs clean
 
 $(PY):
 	$(PYTHON) -m venv $(VENV)
@@ -30,11 +30,16 @@ reproduce: $(VENV)/.installed-run
 TEST_WORKERS ?= 2
 
 test: $(VENV)/.installed-test
-	$(PY) -m pytest -n $(TEST_WORKERS) --dist loadfile --no-loadscope-reorder
+	$(PY) -m pytest -n $(TEST_WORKERS) --dist loadfile --no-loadscope-reorder -m "not science"
 
 # The edit-test loop: everything but the slow end-to-end tests (`make test` runs those too).
 test-fast: $(VENV)/.installed-test
-	$(PY) -m pytest -n $(TEST_WORKERS) --dist loadfile --no-loadscope-reorder -m "not slow"
+	$(PY) -m pytest -n $(TEST_WORKERS) --dist loadfile --no-loadscope-reorder -m "not slow and not science"
+
+# The acceptance benchmarks: the 16-seed pendulum swing-up and the readings study (CI runs them
+# after make test).
+test-science: $(VENV)/.installed-test
+	$(PY) -m pytest -n $(TEST_WORKERS) --dist loadfile --no-loadscope-reorder -m science
 
 lint: $(VENV)/.installed-test
 	$(VENV)/bin/ruff check .

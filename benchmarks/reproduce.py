@@ -5,7 +5,8 @@ The reference is a git revision of this repository (``--reference``, default
 into a temporary worktree and run from it with this environment's Python, so that both sides
 share the machine, the packages and the moment. The two sides alternate, ``--runs`` times each;
 every run starts with an empty compilation cache (``LOOPID_JAX_CACHE``: a cold start, what a
-fresh clone pays) unless ``--warm``. Printed: each side's wall time (min / median / max), their
+fresh clone pays) unless ``--warm``. Printed: each side's wall time (min / median / max) and
+the XLA programs its first run's cells compiled and loaded from the cache, their
 ratio (reference / this tree: above 1 is faster), and whether the two tables are equal
 (``pyarrow.Table.equals``), else which (scenario, method) cells differ and by how much.
 
@@ -85,6 +86,21 @@ def differences(a_file: Path, b_file: Path) -> list[str]:
     return lines
 
 
+def programs(out: Path) -> str:
+    """The XLA programs a run's cells built (``compiled`` and ``loaded`` in each cell file's
+    metadata, Figure 2's and the MDP panel's), or "not recorded" (a tree from before the
+    counting)."""
+    compiled = loaded = 0
+    files = [*out.glob("cells/*__*.parquet"), *out.glob("mdp/cells/*__*.parquet")]
+    for f in files:
+        meta = pq.read_schema(f).metadata or {}
+        if b"loopid.compiled" not in meta:
+            return "not recorded"
+        compiled += int(meta[b"loopid.compiled"])
+        loaded += int(meta[b"loopid.loaded"])
+    return f"{compiled} compiled, {loaded} loaded"
+
+
 def spread(xs: list[float]) -> str:
     return f"{min(xs):.1f} / {statistics.median(xs):.1f} / {max(xs):.1f}"
 
@@ -111,6 +127,7 @@ def main() -> None:
                     out = tmp / f"out-{side}-{i}"
                     times[side].append(run_once(tree, args, out, cache))
                     print(f"{side} run {i + 1}: {times[side][-1]:.1f} s", flush=True)
+            built = {side: programs(tmp / f"out-{side}-0") for side in times}
             if opts.keep is not None:
                 shutil.copytree(tmp / "out-this tree-0", opts.keep, dirs_exist_ok=True)
             changed = []
@@ -123,10 +140,10 @@ def main() -> None:
     what = "loopid reproduce" + ("" if opts.full else " --quick")
     start = "warm cache" if opts.warm else "cold: empty compile cache"
     print(f"\n{what}, {runs} run(s) a side, {start}; {os.cpu_count()} CPUs")
-    print("| side | wall s (min / median / max) |\n|---|---|")
+    print("| side | wall s (min / median / max) | XLA programs (first run) |\n|---|---|---|")
     for side, xs in times.items():
         label = f"reference ({opts.reference})" if side == "reference" else side
-        print(f"| {label} | {spread(xs)} |")
+        print(f"| {label} | {spread(xs)} | {built[side]} |")
     ratio = statistics.median(times["reference"]) / statistics.median(times["this tree"])
     print(f"\nreference / this tree (medians): {ratio:.2f}x")
     print("tables: equal" if not changed else "tables differ:\n- " + "\n- ".join(changed))

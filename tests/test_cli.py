@@ -181,7 +181,7 @@ def test_reproduce_quick_writes_the_four_files(quick):
     assert "Wall time" in report and "this command:" in report
 
 
-@pytest.mark.slow
+@pytest.mark.science
 def test_study_quick_writes_every_file_and_covers_every_reading(tmp_path, cache, quick):
     """``loopid study --quick``, sharing the default reading's cells with a reproduce run."""
     from loopid.experiments.families.helicopter.study import FIGURES, READING_FIELDS, READINGS
@@ -234,7 +234,6 @@ def test_reproduce_quick_literal_equals_the_table_before_the_defaults_changed(tm
     """``reproduce --quick --readings literal`` gives ``tests/fixtures/
     reproduce_quick_literal.parquet``, the table computed before the default readings changed,
     when the literal readings were the defaults, to the last bits that another CPU reproduces.
-    After the study in this file, whose one-factor readings compiled most of its programs.
 
     The rule (:func:`pinned.assert_matches_pin`, whose module gives the measurements):
 

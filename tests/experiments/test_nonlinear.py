@@ -51,7 +51,7 @@ def fly(s: gym.GymScenario, K, rollouts: bool = False):
     return (*out, r) if rollouts else out
 
 
-@pytest.mark.slow
+@pytest.mark.science
 def test_dagger_swings_the_pendulum_up_with_features_and_the_linear_model_cannot(reference):
     """examples/pendulum_swingup.toml at 16 seeds (degree-4 features, 12 iterations of 400
     transitions, the best policy so far tested): DAgger's tested policy swings the pendulum up

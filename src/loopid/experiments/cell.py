@@ -15,6 +15,8 @@ import numpy as np
 import pyarrow as pa
 
 from loopid.algorithms.contracts import Row
+from loopid.experiments import compilations
+from loopid.experiments.compilations import Programs
 from loopid.experiments.families import family_of
 from loopid.experiments.results import trace_table, with_metadata
 from loopid.experiments.tasks import method_names
@@ -40,6 +42,7 @@ def run_cell(
     progress: Callable[[int, Row], None] | None = None,
     *,
     started: float | None = None,
+    built: Programs | None = None,
 ) -> CellResult | dict[str, CellResult]:
     """One cell: its rows (:func:`loopid.experiments.results.trace_table`), with its timings in
     the table's metadata: ``wall_s`` (the whole cell) and ``first_s`` (until iteration 2's row
@@ -50,8 +53,12 @@ def run_cell(
     A tuple of methods is a lane set (the family's ``lane_sets``, run by its ``run_lanes``):
     ``{method: CellResult}``, each cell's ``wall_s`` and ``first_s`` the lane set's times shared
     equally among its methods (metadata ``lane_set`` names them), so that a lane set's cells
-    add up to its time."""
+    add up to its time. ``compiled`` and ``loaded``: the XLA programs this process built for it
+    since ``built`` (:func:`loopid.experiments.compilations.programs`; default now), compiled
+    anew or loaded from the persistent cache; a lane set's are its first method's (0 for the
+    others), so that they add up too."""
     t0 = time.perf_counter() if started is None else started
+    built = compilations.programs() if built is None else built
     first = [None]
 
     def tick(n: int, row: Row) -> None:
@@ -66,10 +73,13 @@ def run_cell(
     else:
         traces = {method: family.run(method, s, seeds, progress=tick)}
     wall = time.perf_counter() - t0
+    programs = compilations.programs() - built
     results = {}
-    for m, trace in traces.items():
+    for k, (m, trace) in enumerate(traces.items()):
         share = len(traces)
         meta = {"wall_s": f"{wall / share:.3f}", "first_s": f"{(first[0] or wall) / share:.3f}"}
+        meta |= {"compiled": str(programs.compiled if k == 0 else 0)}
+        meta |= {"loaded": str(programs.loaded if k == 0 else 0)}
         if isinstance(method, tuple):
             meta["lane_set"] = ",".join(method)
         table = with_metadata(trace_table(s.name, m, trace), **meta)
@@ -108,12 +118,13 @@ def run_chunk(
     it is above ``limit``."""
     family = family_of(s)
     started = time.perf_counter()  # the cell's time includes the compilation measured here
+    built = compilations.programs()  # and its programs those compiled here
     if limit is not None and family.memory is not None:
         nbytes = int(family.memory(s, method, len(seeds)))
         if nbytes > limit:
             return Oversized(nbytes)
     try:
-        return run_cell(s, method, seeds, progress, started=started)
+        return run_cell(s, method, seeds, progress, started=started, built=built)
     except Exception as e:
         if _out_of_memory(e):
             raise ValueError(

@@ -12,6 +12,7 @@ import datetime
 import os
 import platform
 from pathlib import Path
+from typing import NamedTuple
 
 import numpy as np
 import pyarrow as pa
@@ -21,10 +22,21 @@ from loopid.experiments import backend
 from loopid.experiments.costs import Costs, significant
 
 
-def cell_times(run_dir: Path) -> dict[tuple[str, str], tuple[float, float, float]]:
-    """``{(scenario, method): (wall_s, first_s, artifacts_s)}`` recorded by the finished cells
-    of a run (``artifacts_s``: writing the cell's saved policies and models; 0 if not
-    recorded)."""
+class CellTime(NamedTuple):
+    """What a finished cell recorded of its run: seconds in all (``wall_s``), until its
+    iteration 2's row (``first_s``), writing its saved policies and models (``artifacts_s``, 0
+    if not recorded), and the XLA programs it built, ``compiled`` anew and ``loaded`` from the
+    persistent compilation cache (None if not recorded)."""
+
+    wall_s: float
+    first_s: float
+    artifacts_s: float
+    compiled: int | None = None
+    loaded: int | None = None
+
+
+def cell_times(run_dir: Path) -> dict[tuple[str, str], CellTime]:
+    """``{(scenario, method): CellTime}`` of the finished cells of a run."""
     from loopid.experiments.results import metadata
 
     out = {}
@@ -32,12 +44,31 @@ def cell_times(run_dir: Path) -> dict[tuple[str, str], tuple[float, float, float
         meta = metadata(f)
         if "wall_s" in meta:
             s, m = f.stem.split("__", 1)
-            out[(s, m)] = (
+            counted = "compiled" in meta and "loaded" in meta
+            out[(s, m)] = CellTime(
                 float(meta["wall_s"]),
                 float(meta.get("first_s", meta["wall_s"])),
                 float(meta.get("artifacts_s", 0.0)),
+                int(meta["compiled"]) if counted else None,
+                int(meta["loaded"]) if counted else None,
             )
     return out
+
+
+def programs_line(times: dict[tuple[str, str], CellTime]) -> str | None:
+    """The report's line on the XLA programs the cells built (None when no cell recorded it)."""
+    counted = [t for t in times.values() if t.compiled is not None]
+    if not counted:
+        return None
+    compiled = sum(t.compiled for t in counted)
+    loaded = sum(t.loaded for t in counted)
+    missing = len(times) - len(counted)
+    rest = f"; {missing} cells from before counting did not record theirs" if missing else ""
+    return (
+        f"- XLA programs the cells built: {compiled} compiled, {loaded} loaded from the "
+        f"compilation cache (cells skipped on resume keep the counts of the run that computed "
+        f"them{rest})"
+    )
 
 
 def final_table(c: Costs, s: str) -> list[str]:
@@ -122,6 +153,9 @@ def report_text(
             f"cache, plus two iterations): {first:.1f} s; after it: {wall - first:.1f} s",
             f"- saving the cells' final policies and models (`cells/*.npz`): {saving:.1f} s",
         ]
+        line = programs_line(times)
+        if line is not None:
+            L.append(line)
     L.append("")
     L += sections
     if L[-1] != "":
