@@ -13,6 +13,7 @@ __all__ = [
     "checks",
     "chunks",
     "commands",
+    "compilations",
     "costs",
     "curves",
     "evaluate",
