@@ -243,7 +243,10 @@ def animate(
         raise ValueError(f"{str(run_dir)!r} is not a run directory (no config.toml)")
     family, configs = run_family(run_dir)
     if family.animate is None:
-        raise ValueError(f"loopid animate draws helicopter and gym runs, not {family.name} runs")
+        with_animation = ", ".join(f.name for f in families().values() if f.animate is not None)
+        raise ValueError(
+            f"loopid animate draws runs of the {with_animation} families, not {family.name} runs"
+        )
     name = scenario or next(iter(configs))
     if name not in configs:
         raise ValueError(f"{run_dir} has no scenario {name!r}; it has {', '.join(configs)}")
