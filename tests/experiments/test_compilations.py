@@ -27,11 +27,14 @@ PROGRAM = textwrap.dedent(
 )
 
 
-def test_a_new_program_is_counted_as_compiled():
+def test_a_new_program_is_counted_once_and_a_reused_one_not_at_all():
+    """In this process a new program is built once (compiled, or loaded where an earlier run
+    left it in the persistent cache: the next test separates the two), and calling it again
+    builds nothing."""
     before = compilations.programs()
     jax.jit(lambda x: jnp.sinh(x) * 5.0 - x)(jnp.ones(4)).block_until_ready()
     built = compilations.programs() - before
-    assert built.compiled >= 1 and built.loaded == 0
+    assert built.compiled + built.loaded >= 1
     f = jax.jit(lambda x: jnp.cosh(x) + 2.0)
     f(jnp.ones(4)).block_until_ready()
     again = compilations.programs()
