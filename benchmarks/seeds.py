@@ -3,7 +3,7 @@ iterations, 100 test trajectories, at 20, 200 and 2,000 seeds (``--huge``: also 
 
 Each size runs in a fresh process through :func:`loopid.experiments.execute.run_cells` with the
 default memory budget (:func:`loopid.experiments.chunks.budget`, one process), so it runs in seed
-chunks of at most :data:`loopid.experiments.chunks.SPEED_SEEDS` (fewer if the budget asks).
+chunks of :data:`loopid.experiments.chunks.LANE_WIDTH` lanes (fewer if the budget asks).
 Printed per size: the chunks, the wall time of the whole command, the cell's time after its
 first chunk's compilation and two iterations (``wall_s − first_s`` of the cell, per seed and
 relative to the 20-seed cell: the reference), and the process's peak RSS.

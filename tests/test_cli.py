@@ -125,7 +125,13 @@ def test_bad_input_from_the_console_script(tmp_path):
 
 
 @pytest.fixture(scope="session")
-def quick(tmp_path_factory, cache) -> Path:
+def quick_cache(tmp_path_factory) -> Path:
+    """The compilation cache :func:`quick` alone fills (what --quick compiled)."""
+    return tmp_path_factory.mktemp("quick-cache")
+
+
+@pytest.fixture(scope="session")
+def quick(tmp_path_factory, quick_cache) -> Path:
     """``loopid reproduce --quick`` into a fresh directory (fills the shared cache).
 
     The end-to-end runs of this file use one worker process: they are compile-bound, and on
@@ -134,9 +140,31 @@ def quick(tmp_path_factory, cache) -> Path:
     (``reproduce --quick`` cold, measured: 76 s and 108 CPU-s with one worker, 85 s and 149
     CPU-s with two). Worker processes have their own tests (``test_cli_executors.py``)."""
     out = tmp_path_factory.mktemp("quick") / "run"
-    r = cli("reproduce", "--quick", "--workers", "1", "--out", out, cache=cache)
+    r = cli("reproduce", "--quick", "--workers", "1", "--out", out, cache=quick_cache)
     assert r.returncode == 0, r.stderr
     return out
+
+
+def step_programs(cache: Path) -> set[str]:
+    """The ``step`` programs (one iteration of the loop) in the compilation cache ``cache``."""
+    return {p.name for p in cache.iterdir() if p.name.startswith("jit_step-")}
+
+
+@pytest.mark.slow
+def test_a_run_after_quick_compiles_no_new_step_program(quick, quick_cache, tmp_path):
+    """Programs do not depend on the seed or iteration count a command asks for: after
+    ``reproduce --quick`` (2 seeds, 4 iterations), ``loopid run hover --seeds 5 --iterations
+    6`` at --quick's 10 test trajectories runs the same padded lane width and finds its
+    ``step`` program in the cache --quick left (before a fixed lane width it compiled one for 5
+    seeds)."""
+    before = step_programs(quick_cache)
+    assert before  # --quick compiled its panels' programs into this cache
+    r = cli("run", "hover", "--seeds", "5", "--iterations", "6", "--test-trajectories", "10",
+            "--workers", "1", "--quiet", "--out", tmp_path / "run", cache=quick_cache)  # fmt: skip
+    assert r.returncode == 0, r.stderr
+    assert step_programs(quick_cache) == before
+    rows = pq.read_table(tmp_path / "run" / "results.parquet").to_pydict()
+    assert len(rows["seed"]) == 9 * 5 * 6  # every method, seed and iteration ran
 
 
 @pytest.mark.slow

@@ -30,7 +30,7 @@ def test_the_cpu_keeps_its_workers_cap_and_budget():
     assert backend.describe() == "cpu" and backend.device_bytes() is None
     assert not backend.shared_device()  # never threads on a CPU (pool's docstring)
     assert backend.fold_workers(4) == 4
-    assert chunks.speed_seeds(40) == chunks.SPEED_SEEDS == 12 and chunks.speed_seeds(5) == 5
+    assert chunks.lane_width(40) == chunks.lane_width(2) == chunks.LANE_WIDTH == 10
     assert chunks.budget(2.0, 2) == 10**9
 
 
@@ -39,7 +39,7 @@ def test_a_real_accelerator_is_described_folded_and_budgeted_by_its_own_memory()
     assert backend.describe().startswith(f"{backend.name()} ({backend.device_count()} x ")
     devices = backend.worker_devices()
     assert backend.fold_workers(devices + 3) == (devices + 3 if devices == 1 else devices)
-    assert chunks.speed_seeds(1000) == 1000  # no speed cap on a device
+    assert chunks.lane_width(1000) == 1000  # no fixed width on a device
     memory = backend.device_bytes()  # None where the device does not report its memory
     if memory is not None:
         assert memory > 10**9 and chunks.budget(None, 1) == int(backend.DEVICE_FRACTION * memory)
@@ -71,8 +71,8 @@ def test_one_gpu_keeps_its_workers_as_threads_sharing_its_memory(one_gpu, monkey
     assert chunks.budget(None, 4) == int(backend.DEVICE_FRACTION * 80e9)
 
 
-def test_an_accelerator_has_no_speed_cap_and_budgets_the_devices_memory(one_gpu):
-    assert chunks.speed_seeds(1000) == 1000
+def test_an_accelerator_has_no_fixed_lane_width_and_budgets_the_devices_memory(one_gpu):
+    assert chunks.lane_width(1000) == 1000 and chunks.lane_width(2) == chunks.MIN_CHUNK
     assert chunks.budget(None, 1) == int(backend.DEVICE_FRACTION * 80e9)
     assert chunks.budget(8.0, 1) == 8 * 10**9  # --memory still rules when given
 

@@ -38,10 +38,11 @@ def test_split_pads_equal_chunks_and_covers_every_position_once():
     assert [(c.start, c.stop) for c in parts] == [(0, 2), (5, 7)]
 
 
-def test_plan_caps_chunks_for_speed_and_a_task_over_budget_comes_back_in_chunks_that_fit(
+def test_plan_runs_chunks_of_one_lane_width_and_a_task_over_budget_comes_back_in_chunks_that_fit(
     tmp_path, monkeypatch
 ):
-    """30 seeds run in chunks of at most SPEED_SEEDS (3 of 10) whatever the budget; a task
+    """30 seeds run in chunks of LANE_WIDTH (3 of 10) whatever the budget, 25 and 2 seeds in
+    chunks of 10 too, padded (one program shape for every seed count); a task
     measures its programs at its own 10 seeds before it runs and, over its share of the budget,
     returns Oversized instead of rows; its seeds then come back as chunks that fit."""
     from loopid.experiments import cell, tasks
@@ -50,8 +51,15 @@ def test_plan_caps_chunks_for_speed_and_a_task_over_budget_comes_back_in_chunks_
     s = scenario("hover", seeds=30, **SMALL)
     family = cell.family_of(s)
     jobs = tasks.plan(RunDir(tmp_path), [(s, "dagger-t")], np.arange(30), family)
-    assert chunks.SPEED_SEEDS == 12
+    assert chunks.LANE_WIDTH == 10
     assert [job.part for job in jobs] == [(0, 10), (10, 20), (20, 30)]
+    for count, parts in ((25, [(0, 10), (10, 20), (20, 25)]), (2, [(0, 2)])):
+        few = tasks.plan(RunDir(tmp_path), [(s, "dagger-t")], np.arange(count), family)
+        assert [job.part for job in few] == parts
+        assert {len(job.seeds) for job in few} == {10}
+        assert list(few[-1].seeds[parts[-1][1] - parts[-1][0] :]) == [count - 1] * (
+            10 - parts[-1][1] + parts[-1][0]
+        )  # padded with copies of the last seed
     asked = []
 
     def memory(s, method, seeds):
@@ -246,8 +254,8 @@ def test_memory_estimate_within_a_factor_of_two_of_the_measured_peak(name, metho
 @pytest.mark.slow
 def test_cli_memory_budget_gives_the_same_table(tmp_path, cache):
     """The issue's check: ``loopid run hover --seeds 40`` under a small budget gives the table of
-    the same command with 16 GB, every row and column. 16 GB runs the speed-capped chunks
-    (``chunks.SPEED_SEEDS`` = 12: 4 chunks of 10); 30 MB holds 5 seeds (5.76 MB a seed, mostly
+    the same command with 16 GB, every row and column. 16 GB runs chunks of one lane width
+    (``chunks.LANE_WIDTH`` = 10: 4 chunks of 10); 30 MB holds 5 seeds (5.76 MB a seed, mostly
     the test noise while it is drawn): 8 chunks of 5, other column counts in every batched sum.
     (The issue's 100 MB now gives the capped chunks too.) With 100 test trajectories this caught
     ``jnp.sum`` over the cost's 21 error coordinates depending on the batch width (9 of the 120

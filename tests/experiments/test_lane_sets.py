@@ -23,7 +23,7 @@ def one_by_one(tmp_path_factory):
     """The reference: each method its own cell, in two seed chunks of 3."""
     out = tmp_path_factory.mktemp("one_by_one")
     with pytest.MonkeyPatch.context() as mp:
-        mp.setattr(chunks, "SPEED_SEEDS", 3)
+        mp.setattr(chunks, "LANE_WIDTH", 3)
         run_cells(out, [HOVER], METHODS, workers=1, lanes=False)
     return out
 
@@ -45,7 +45,7 @@ def _assert_same_run(a, b):
 def test_a_killed_lane_set_resumes_to_the_table_of_the_methods_one_by_one(
     one_by_one, tmp_path, monkeypatch
 ):
-    monkeypatch.setattr(chunks, "SPEED_SEEDS", 3)
+    monkeypatch.setattr(chunks, "LANE_WIDTH", 3)
     out = tmp_path / "lanes"
     started = []
 
@@ -89,7 +89,7 @@ def test_blocks_of_iterations_as_an_accelerator_runs_them_give_the_same_table(
 
     run_blocks = loop._blocks
     monkeypatch.setattr(loop, "_blocks", in_blocks)
-    monkeypatch.setattr(chunks, "SPEED_SEEDS", 3)
+    monkeypatch.setattr(chunks, "LANE_WIDTH", 3)
     monkeypatch.setattr(backend, "default_block", lambda: backend.ACCELERATOR_BLOCK)
     out = tmp_path / "blocks"
     run_cells(out, [HOVER], METHODS, workers=1, lanes=True, memory=16.0)
@@ -100,8 +100,9 @@ def test_blocks_of_iterations_as_an_accelerator_runs_them_give_the_same_table(
 def test_the_rows_check_counts_the_widest_lane_sets_methods(tmp_path, monkeypatch):
     """A lane set keeps the rows of all its methods' seeds: the check before anything runs
     counts the widest lane set's methods (4 here), not the scenario's lane sets (2: the
-    learning methods and the expert). 10⁶ iterations of 2 seeds: about 1.6 GB of rows for 2
-    methods, 2.2 GB for 4; a 2 GB budget refuses it at once."""
+    learning methods and the expert). 10⁶ iterations of 2 seeds, each method's chunk padded to
+    the lane width (10): about 4 GB of rows for 2 methods, 7 GB for 4; a 5 GB budget refuses it
+    at once."""
     from loopid.experiments import execute
 
     def planned(*args, **kwargs):
@@ -109,5 +110,5 @@ def test_the_rows_check_counts_the_widest_lane_sets_methods(tmp_path, monkeypatc
 
     monkeypatch.setattr(execute, "plan", planned)
     huge = HOVER.replace(seeds=2, iterations=10**6)
-    with pytest.raises(ValueError, match="1000000 iterations of 8 seeds a task"):
-        run_cells(tmp_path / "huge", [huge], METHODS, workers=1, lanes=True, memory=2.0)
+    with pytest.raises(ValueError, match="1000000 iterations of 40 seeds a task"):
+        run_cells(tmp_path / "huge", [huge], METHODS, workers=1, lanes=True, memory=5.0)

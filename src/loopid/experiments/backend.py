@@ -4,8 +4,8 @@ JAX runs a cell's programs on its default backend: the CPU, or an accelerator (a
 The two want different executors:
 
 - **CPU.** Several worker processes (one per core, at most
-  :data:`~loopid.experiments.executors.MAX_DEFAULT_WORKERS`) share the cores; a chunk holds at
-  most :data:`~loopid.experiments.chunks.SPEED_SEEDS` seeds (its working set then stays in the
+  :data:`~loopid.experiments.executors.MAX_DEFAULT_WORKERS`) share the cores; a chunk holds
+  exactly :data:`~loopid.experiments.chunks.LANE_WIDTH` lanes (its working set then stays in the
   core's cache); the memory budget is the host's.
 - **Accelerator.** One process per device: processes sharing one device time-slice it (measured
   on one H200: a hover cell 37-66 s with four worker processes against 6.6 s alone), so more

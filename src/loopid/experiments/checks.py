@@ -41,7 +41,7 @@ def check_rows(
     ``methods``, a lane set's) until it ends, about ``iterations · (ITERATION_BYTES + ROW_BYTES
     · seeds · methods)`` bytes, whatever the chunking of its seeds (so ``--iterations
     1000000000`` is refused at once instead of running for hours)."""
-    chunk = chunks.speed_seeds(len(seeds)) * methods
+    chunk = chunks.lane_width(len(seeds)) * methods
     for s in scenarios:
         need = s.iterations * (ITERATION_BYTES + ROW_BYTES * chunk)
         if need > limit:

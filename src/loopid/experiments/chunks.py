@@ -18,11 +18,15 @@ A cell runs all its seeds as one vmapped program, so its memory grows with the s
   shared equally by the threads of one process sharing the device.
 - **Chunks** (:func:`chunk_size`, :func:`split`): the programs' memory is affine in the seed count,
   ``a + b·S`` with ``a ≥ 0``, so ``b ≤ M(S)/S`` and ``c = ⌊S · budget / M(S)⌋`` seeds fit
-  (S: the seed count, at most :data:`SPEED_SEEDS`, the estimate is made at). The
+  (S: the seed count, at most :data:`LANE_WIDTH`, the estimate is made at). The
   seeds are split into ``k = ⌈S / c⌉`` chunks of ``⌈S / k⌉``; the last is padded with copies
   of its last seed (dropped afterwards), so every chunk runs one compiled program.
-- **Speed cap** (:data:`SPEED_SEEDS`, on a CPU; :func:`speed_seeds`): a chunk also holds at most
-  this many seeds, even when more fit the budget, because the cost per seed grows with the chunk
+- **Lane width** (:data:`LANE_WIDTH`, on a CPU; :func:`lane_width`): every chunk holds exactly
+  this many lanes, padding its unused ones with copies of its last seed, so a panel's programs
+  have one shape whatever the seed count a command asks for: ``--quick``'s 2 seeds,
+  ``loopid run --seeds 5`` and ``loopid reproduce``'s 20 (two chunks) all run, and share in the
+  persistent compilation cache, the same compiled programs. A chunk holds no more, even when more
+  fit the budget, because the cost per seed grows with the chunk
   once a chunk's working set outgrows the core's cache. The test rollouts, most of a cell's
   arithmetic, advance every trajectory of the chunk one step at a time: per trajectory column
   the state, its error coordinates, the change and that step's noise, ~600 B, so ~60 kB per seed
@@ -88,9 +92,9 @@ DEFAULT_FRACTION = 0.6
 PROCESS_BYTES = 1.5e9
 
 GB = 1e9
-#: The most seeds a chunk holds, for speed (module docstring: the per-seed cost is lowest at
-#: 10-15 seeds and grows above, 1.25x at 200).
-SPEED_SEEDS = 12
+#: The lanes every chunk holds on a CPU (module docstring: one program shape for every seed
+#: count; the per-seed cost is lowest at 10-15 seeds and grows above, 1.25x at 200).
+LANE_WIDTH = 10
 #: The fewest seeds a chunk holds (:data:`loopid.algorithms.loop.MIN_SEEDS`: smaller batches are
 #: lowered differently).
 MIN_CHUNK = MIN_SEEDS
@@ -142,10 +146,11 @@ def budget(gb: float | None, processes: int = 1, *, threads: bool = False) -> in
     return int(max(DEFAULT_FRACTION * available_bytes() - processes * PROCESS_BYTES, 0) / processes)
 
 
-def speed_seeds(seeds: int) -> int:
-    """The most seeds a chunk holds for speed: :data:`SPEED_SEEDS` on a CPU; on an accelerator,
-    where width is nearly free, all ``seeds`` (the memory budget alone splits them)."""
-    return seeds if backend.accelerator() else min(seeds, SPEED_SEEDS)
+def lane_width(seeds: int) -> int:
+    """The lanes a chunk of a run of ``seeds`` seeds holds: :data:`LANE_WIDTH` on a CPU, the
+    unused ones padded; on an accelerator, where width is nearly free, all ``seeds`` (the memory
+    budget alone splits them)."""
+    return max(seeds, MIN_CHUNK) if backend.accelerator() else LANE_WIDTH
 
 
 def check_processes(processes: int, what: str = "--workers") -> None:

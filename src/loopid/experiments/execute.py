@@ -6,8 +6,8 @@ workers against the machine's CPUs and memory, that ``out`` can be written, that
 directory already there holds the same configuration), then:
 
 1. splits each unfinished cell's missing seeds into tasks (:mod:`loopid.experiments.tasks`:
-   one method's, or a lane set's methods'), in chunks of at most
-   :data:`~loopid.experiments.chunks.SPEED_SEEDS` on a CPU (families with a memory estimate;
+   one method's, or a lane set's methods'), in chunks of
+   :data:`~loopid.experiments.chunks.LANE_WIDTH` lanes on a CPU (families with a memory estimate;
    :mod:`loopid.experiments.chunks`; on an accelerator, one process per device, or threads
    sharing one device, and chunks as large as its memory allows:
    :mod:`loopid.experiments.backend`);

@@ -15,7 +15,7 @@ from typing import Any
 
 import numpy as np
 
-from loopid.experiments import chunks
+from loopid.experiments import backend, chunks
 from loopid.experiments.executors import Job
 from loopid.experiments.families import Family
 from loopid.experiments.rundir import RunDir
@@ -46,13 +46,15 @@ def lane_sets(family: Family, todo) -> dict[str, list[tuple[str, ...]]]:
 
 
 def plan(rd: RunDir, todo, seeds: np.ndarray, family: Family, groups=None) -> list[Job]:
-    """The tasks of the unfinished cells: each cell's missing seeds, in chunks of at most
-    :func:`loopid.experiments.chunks.speed_seeds` (at least ``MIN_CHUNK``) for families with a
-    memory estimate, else whole; a cell that is one chunk is saved as a cell, with no chunk
+    """The tasks of the unfinished cells: each cell's missing seeds, for families with a memory
+    estimate in chunks of :func:`loopid.experiments.chunks.lane_width` lanes (on a CPU exactly
+    that many, padded; on an accelerator at most, at least ``MIN_CHUNK``), else whole; a cell that is one chunk is saved as a cell, with no chunk
     files. ``groups`` (:func:`lane_sets`): the methods of a lane set that miss the same seeds
     run as one task per chunk (its ``method`` the tuple of them)."""
-    least = chunks.MIN_CHUNK if family.memory else 1  # chunked families: one lowering a seed
-    most = chunks.speed_seeds(len(seeds)) if family.memory else len(seeds)
+    width = chunks.lane_width(len(seeds))
+    # chunked families: every chunk one lane width (one program shape for any seed count)
+    most = width if family.memory else len(seeds)
+    least = (width if not backend.accelerator() else chunks.MIN_CHUNK) if family.memory else 1
     missing = {
         (s.name, m): tuple(chunks.ChunkFiles(rd.cells, s.name, m).missing(len(seeds)))
         for s, m in todo
