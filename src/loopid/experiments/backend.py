@@ -14,7 +14,7 @@ The two want different executors:
   cannot be pinned to a device), the workers are threads of this process instead, sharing the
   device: each compiles its cells' programs (most of a cold run on a GPU) while the others
   compute (:mod:`loopid.experiments.pool`). Width is nearly
-  free on a device, so a chunk holds as many seeds as its memory allows (no speed cap), and the
+  free on a device, so a chunk holds as many seeds as its memory allows (no fixed width), and the
   budget is the device's own memory (:func:`device_bytes`), not the host's. Each worker process
   sees only its own device, and no process preallocates most of a device's memory
   (``XLA_PYTHON_CLIENT_PREALLOCATE=false``, set by ``import loopid`` before JAX starts).

@@ -30,7 +30,7 @@ A cell runs all its seeds as one vmapped program, so its memory grows with the s
   once a chunk's working set outgrows the core's cache. The test rollouts, most of a cell's
   arithmetic, advance every trajectory of the chunk one step at a time: per trajectory column
   the state, its error coordinates, the change and that step's noise, ~600 B, so ~60 kB per seed
-  at 100 test trajectories, and a chunk of 12 seeds (~0.7 MB) stays inside this machine's 2 MB
+  at 100 test trajectories, and a chunk of 10 seeds (~0.6 MB) stays inside this machine's 2 MB
   L2 where one of 40 (~2.4 MB) does not. Measured on the hover DAgger cell (100 test
   trajectories, one step after compilation, sizes interleaved in one process, best of 6-8,
   2-core machine): per seed 0.86x at 10 seeds, 0.90x at 15, 1.00 at 20 and 30, 1.04x at 40,
@@ -38,7 +38,7 @@ A cell runs all its seeds as one vmapped program, so its memory grows with the s
   per seed is the same for the funnel (same state, same test count), and the finite-MDP cells'
   per-seed data (MB) is out of cache at any chunk size. The cost of more chunks is a Python call
   per chunk and iteration (~1 ms against ~100 ms of work) and their files. The memory estimate
-  is made at the capped chunk's size, so its compilation is the one the run reuses.
+  is made at the chunk's width, so its compilation is the one the run reuses.
 - **Same numbers.** Each seed's computation is its own under ``vmap`` (its keys come from its
   seed alone), but XLA's CPU backend picks a reduction's loop from the whole shape, so a sum's
   order, and its last bit, can change with the number of seeds beside it. Every reduction whose
