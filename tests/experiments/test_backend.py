@@ -1,8 +1,9 @@
 """What the backend implies for a run (loopid.experiments.backend): on an accelerator one worker
 process per device (more are folded, with one line), or threads of this process sharing the one
-device it can use, chunks without the CPU's fixed lane width, a memory budget from the device's memory
-(shared by the threads), and each worker pinned to its own device. The accelerator is simulated
-on a CPU; on an accelerator the CPU's test is skipped and one more checks the real device."""
+device it can use, chunks without the CPU's fixed lane width, a memory budget from the device's
+memory (shared by the threads), and each worker pinned to its own device. The accelerator is
+simulated on a CPU; on an accelerator the CPU's test is skipped and one more checks the real
+device."""
 
 import functools
 import os

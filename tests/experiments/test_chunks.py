@@ -257,9 +257,9 @@ def test_cli_memory_budget_gives_the_same_table(tmp_path, cache):
     the same command with 16 GB, every row and column. 16 GB runs chunks of one lane width
     (``chunks.LANE_WIDTH`` = 10: 4 chunks of 10); 30 MB holds 5 seeds (5.76 MB a seed, mostly
     the test noise while it is drawn): 8 chunks of 5, other column counts in every batched sum.
-    (The issue's 100 MB now gives chunks of the lane width too.) With 100 test trajectories this caught
-    ``jnp.sum`` over the cost's 21 error coordinates depending on the batch width (9 of the 120
-    test costs 1 ulp apart, chunks of 14 against one of 40), now summed in a fixed order
+    (The issue's 100 MB now gives chunks of the lane width too.) With 100 test trajectories this
+    caught ``jnp.sum`` over the cost's 21 error coordinates depending on the batch width (9 of
+    the 120 test costs 1 ulp apart, chunks of 14 against one of 40), now summed in a fixed order
     (``plant.ordered_sum``)."""
     from conftest import cli
 

@@ -35,6 +35,7 @@ from typing import NamedTuple
 
 import jax
 import jax.numpy as jnp
+import numpy as np
 
 from loopid.algorithms.contracts import SharedSampler, Transitions
 from loopid.algorithms.plant import Plant, make_plant
@@ -73,8 +74,9 @@ def planned_flight(plant: Plant, K: jax.Array) -> Centre:
         cost_cap=plant.cost_cap, delay_mode=plant.delay_mode,
     )  # fmt: skip
     flight = jax.jit(quiet.rollout)(jnp.asarray(K, jnp.float64), jax.random.key(0), 0.0)
-    if not bool(jnp.all(flight.mask)):
-        first = int(jnp.argmin(flight.mask))
+    mask = np.asarray(flight.mask)
+    if not mask.all():
+        first = int(np.argmin(mask))
         raise ValueError(f"the planned flight leaves the safe region at step {first}")
     return Centre(flight.x, flight.du)
 

@@ -48,9 +48,10 @@ def lane_sets(family: Family, todo) -> dict[str, list[tuple[str, ...]]]:
 def plan(rd: RunDir, todo, seeds: np.ndarray, family: Family, groups=None) -> list[Job]:
     """The tasks of the unfinished cells: each cell's missing seeds, for families with a memory
     estimate in chunks of :func:`loopid.experiments.chunks.lane_width` lanes (on a CPU exactly
-    that many, padded; on an accelerator at most, at least ``MIN_CHUNK``), else whole; a cell that is one chunk is saved as a cell, with no chunk
-    files. ``groups`` (:func:`lane_sets`): the methods of a lane set that miss the same seeds
-    run as one task per chunk (its ``method`` the tuple of them)."""
+    that many, padded; on an accelerator at most, at least ``MIN_CHUNK``), else whole; a cell
+    that is one chunk is saved as a cell, with no chunk files. ``groups`` (:func:`lane_sets`):
+    the methods of a lane set that miss the same seeds run as one task per chunk (its
+    ``method`` the tuple of them)."""
     width = chunks.lane_width(len(seeds))
     # chunked families: every chunk one lane width (one program shape for any seed count)
     most = width if family.memory else len(seeds)

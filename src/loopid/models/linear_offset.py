@@ -180,7 +180,7 @@ def hover_nominal(n: int, m: int) -> LinearOffsetModel:
     B = np.zeros((n, m))
     B[0:m] = np.eye(m)
     B[m : 2 * m] = np.eye(m)
-    return LinearOffsetModel(A=jnp.eye(n, dtype=jnp.float64), B=jnp.asarray(B))
+    return LinearOffsetModel(A=jnp.asarray(np.eye(n)), B=jnp.asarray(B))
 
 
 def time_varying_nominal(A, B, increments) -> LinearOffsetModel:

@@ -26,6 +26,7 @@ Error coordinates relative to a target x* (what models and controllers see), ``d
 dx[0:17] = x[0:17] − x*[0:17]; dx[17:20] = vector part of conj(q*) ⊗ q; dx[20] = 1.
 """
 
+import functools
 from typing import NamedTuple
 
 import jax
@@ -185,6 +186,7 @@ class HoverTrim(NamedTuple):
     roll: jax.Array
 
 
+@jax.jit  # one compiled program, not one per operation, when called outside a trace
 def hover_trim() -> HoverTrim:
     """Solve the hover force/torque balance in closed form from the model coefficients.
 
@@ -199,6 +201,7 @@ def hover_trim() -> HoverTrim:
     return HoverTrim(u=jnp.concatenate([c_rot, c4[None]]), roll=roll)
 
 
+@jax.jit
 def hover_target() -> jax.Array:
     """Hover target [21]: trim controls, du_prev = velocity = position = rates = 0, rolled by φ."""
     u, roll = hover_trim()
@@ -206,6 +209,7 @@ def hover_target() -> jax.Array:
     return jnp.concatenate([u, jnp.zeros(13), q])
 
 
+@functools.partial(jax.jit, static_argnames="pads")
 def funnel_target(pads: bool = True) -> jax.Array:
     """Nose-in funnel target: [600, 21] with pads, [400, 21] without.
 

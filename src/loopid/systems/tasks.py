@@ -77,10 +77,10 @@ def cost_matrices(weights) -> tuple[jax.Array, jax.Array]:
             f"weights must be 7 finite non-negative numbers over [u_prev, du_prev, ned_dot, ned, "
             f"pqr, q, const], got {weights!r}"
         )
-    diag = np.repeat(w, WEIGHT_BLOCKS)
-    Q = helicopter.DT * jnp.diag(jnp.asarray(diag))
-    R = helicopter.DT * ACTION_WEIGHT * jnp.eye(helicopter.N_ACTION)
-    return Q, R
+    diag = np.repeat(w, WEIGHT_BLOCKS)  # in NumPy: the same products, no compiled programs
+    Q = helicopter.DT * np.diag(diag)
+    R = helicopter.DT * ACTION_WEIGHT * np.eye(helicopter.N_ACTION)
+    return jnp.asarray(Q), jnp.asarray(R)
 
 
 def trajectory_cost(dX: jax.Array, dU: jax.Array, Q: jax.Array, R: jax.Array) -> jax.Array:
@@ -118,7 +118,7 @@ def make_task(name: str, *, noise_std=None, delay=None, pads: bool = True) -> Ta
         target = helicopter.funnel_target(pads=pads)
         Q, R = cost_matrices(FUNNEL_WEIGHTS)
     else:
-        target = jnp.tile(helicopter.hover_target()[None], (HOVER_STEPS + 1, 1))
+        target = jnp.asarray(np.tile(np.asarray(helicopter.hover_target()), (HOVER_STEPS + 1, 1)))
         Q, R = cost_matrices(HOVER_WEIGHTS)
     return Task(
         name=name,

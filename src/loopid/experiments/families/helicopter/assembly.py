@@ -111,7 +111,7 @@ def _setup(key: Scenario) -> Setup:
     model = None if paper else agents.model_class(spec.model, spec.learner, nominal)
     agent = agents.make_agent(
         spec, nominal, task.Q, task.R, plant.horizon,
-        start=helicopter.to_error(jnp.asarray(task.x0), jnp.asarray(task.target)[0]),
+        start=jax.jit(helicopter.to_error)(jnp.asarray(task.x0), jnp.asarray(task.target)[0]),
         U0=np.zeros((plant.horizon, helicopter.N_ACTION)), model=model,
     )  # fmt: skip
     nus = make_nus(
