@@ -8,9 +8,7 @@ Importing loopid turns on JAX float64 (every hot path is float64), keeps JAX fro
 preallocating most of a GPU's memory (``XLA_PYTHON_CLIENT_PREALLOCATE=false`` unless set), makes
 a GPU's programs deterministic (``--xla_gpu_deterministic_ops=true`` added to ``XLA_FLAGS``
 unless they name it), lets XLA's CPU compiler update a skipped branch's buffers in place
-(``--xla_cpu_copy_insertion_use_region_analysis=true``, the same way), compiles for a CPU at
-LLVM's optimisation level 1 where no accelerator plugin is installed
-(``--xla_backend_optimization_level=1``, the same way: loopid is compile-bound there), runs
+(``--xla_cpu_copy_insertion_use_region_analysis=true``, the same way), runs
 the BLAS and LAPACK libraries of this process (those behind JAX's CPU linear algebra among them)
 on one thread, and registers the helicopter tasks as Gymnasium environments
 (``loopid/HelicopterHover-v0``, ``loopid/HelicopterHoverDelay-v0``,
@@ -49,29 +47,9 @@ def _jaxlib_at_least(major: int, minor: int) -> bool:
     return found is not None and (int(found[1]), int(found[2])) >= (major, minor)
 
 
-#
-# On a machine without an accelerator, LLVM optimises XLA's CPU programs at level 1, not 3
-# (``--xla_backend_optimization_level=1``): loopid is compile-bound on a CPU, and level 1
-# compiled a hover iteration of 10 seeds in 4.6-4.8 s against 6.8-7.2 s, the funnel's in 4.2 s
-# against 6.1 s, with the same run time per iteration (0.04-0.05 s); ``reproduce --quick`` took
-# 59.5 s against 68.0 s cold. Its rounding differs in the last bits (within the equivalence
-# rule of the development page). Where an accelerator's JAX plugin is installed the flag is
-# left out (it would also lower the optimisation of the accelerator's kernels).
-_ACCELERATOR_PLUGINS = ("jax_cuda12_plugin", "jax_cuda13_plugin", "jax_rocm7_plugin", "libtpu")
-
-
-def _accelerator_plugin() -> bool:
-    """Whether a JAX plugin for a GPU or TPU is installed (looked up without importing it)."""
-    from importlib.util import find_spec
-
-    return any(find_spec(name) is not None for name in _ACCELERATOR_PLUGINS)
-
-
 _XLA_DEFAULTS = ["xla_gpu_deterministic_ops=true"]
 if _jaxlib_at_least(0, 5):
     _XLA_DEFAULTS.append("xla_cpu_copy_insertion_use_region_analysis=true")
-if not _accelerator_plugin():
-    _XLA_DEFAULTS.append("xla_backend_optimization_level=1")
 if _missing := [
     f"--{flag}"
     for flag in _XLA_DEFAULTS
