@@ -24,4 +24,5 @@ __all__ = [
     "policy_gradient_step",
     "schedules",
     "transitions",
+    "xla_options",
 ]

@@ -92,7 +92,7 @@ def program_memory(
     if test_only:
         return peak
     noise = jax.eval_shape(lambda w: lane_noise(w, methods), noise)
-    carry = jax.eval_shape(lambda k, w: program.start(k, w, methods)[0], keys, noise)
+    carry = jax.eval_shape(lambda k: program.init(lane_seed_keys(k, methods)), keys)
     if block > 1 and program.steps is not None:  # as run_lanes runs it
         ns = jax.ShapeDtypeStruct((block,), jnp.int32)
         ps = jax.ShapeDtypeStruct((block, methods), jnp.float64)
