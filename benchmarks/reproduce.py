@@ -1,7 +1,7 @@
 """Whole ``loopid reproduce`` commands, this tree against a named reference, in one run.
 
 The reference is a git revision of this repository (``--reference``, default
-:data:`REFERENCE`: the last commit before the engine's batching and backend work), checked out
+:data:`REFERENCE`: the last commit before the compile-once work), checked out
 into a temporary worktree and run from it with this environment's Python, so that both sides
 share the machine, the packages and the moment. The two sides alternate, ``--runs`` times each;
 every run starts with an empty compilation cache (``LOOPID_JAX_CACHE``: a cold start, what a
@@ -11,6 +11,7 @@ ratio (reference / this tree: above 1 is faster), and whether the two tables are
 (``pyarrow.Table.equals``), else which (scenario, method) cells differ and by how much.
 
     .venv/bin/python benchmarks/reproduce.py                 # --quick, 3 runs each
+    .venv/bin/python benchmarks/reproduce.py --readings literal   # the same work on both sides
     .venv/bin/python benchmarks/reproduce.py --full --runs 1 # the whole of Figure 2 (~10 min a run)
     .venv/bin/python benchmarks/reproduce.py --reference HEAD~3 --warm
 
@@ -34,8 +35,10 @@ import pyarrow.parquet as pq
 
 ROOT = Path(__file__).resolve().parent.parent
 
-#: The default reference: the last commit before the engine's batching and backend work.
-REFERENCE = "1589106"
+#: The default reference: the last commit before the compile-once work (programs of one lane
+#: width, the learning loop at LLVM level 1, fewer small programs). Earlier references: 1589106
+#: (before the engine's batching and backend work).
+REFERENCE = "4ee9c89"
 
 
 def worktree(rev: str, where: Path) -> Path:
@@ -111,11 +114,15 @@ def main() -> None:
     parser.add_argument("--full", action="store_true", help="the whole protocol, not --quick")
     parser.add_argument("--runs", type=int, default=None, help="runs per side (3 quick, 1 full)")
     parser.add_argument("--warm", action="store_true", help="keep each side's compile cache")
+    parser.add_argument("--readings", default=None,
+                        help="a readings preset both sides run (literal: same work)")  # fmt: skip
     parser.add_argument("--keep", type=Path, default=None,
                         help="copy this tree's first run directory here")  # fmt: skip
     opts = parser.parse_args()
     runs = opts.runs or (1 if opts.full else 3)
     args = [] if opts.full else ["--quick"]
+    if opts.readings is not None:
+        args += ["--readings", opts.readings]
     with tempfile.TemporaryDirectory() as tmp:
         tmp = Path(tmp)
         ref = worktree(opts.reference, tmp / "reference")
@@ -138,6 +145,8 @@ def main() -> None:
         finally:
             remove_worktree(ref)
     what = "loopid reproduce" + ("" if opts.full else " --quick")
+    if opts.readings is not None:
+        what += f" --readings {opts.readings}"
     start = "warm cache" if opts.warm else "cold: empty compile cache"
     print(f"\n{what}, {runs} run(s) a side, {start}; {os.cpu_count()} CPUs")
     print("| side | wall s (min / median / max) | XLA programs (first run) |\n|---|---|---|")
