@@ -9,10 +9,10 @@ against 6.1 s, while one iteration ran in the same 0.04-0.05 s; the test-noise p
 against 1.0-1.4 s. Rounding moves in the last bits, and the learning cells of ``loopid
 reproduce`` stay within the equivalence rule of the development page.
 
-Only these programs: the policy-gradient baseline's random search is chaotic on the funnel, and
-at level 1 its 20 seeds had 11 with a diverged test trajectory against 9, which the rule
-refuses. On an accelerator no option is set (it would lower the optimisation of the device's
-kernels too).
+Only these programs, the largest a panel compiles, and not for the whole process (an
+``XLA_FLAGS`` setting would also change the programs of a user's own code in the same process).
+On an accelerator no option is set (it would lower the optimisation of the device's kernels
+too).
 """
 
 import jax
