@@ -24,5 +24,4 @@ __all__ = [
     "policy_gradient_step",
     "schedules",
     "transitions",
-    "xla_options",
 ]

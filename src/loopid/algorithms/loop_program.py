@@ -54,7 +54,6 @@ from loopid.algorithms.contracts import (
 from loopid.algorithms.keys import SELECT, TEST, iteration_keys, stream_key
 from loopid.algorithms.plant import noise_columns, ordered_sum
 from loopid.algorithms.transitions import select
-from loopid.algorithms.xla_options import loop_options
 
 TEST_POLICIES = ("last", "best", "mixture")
 
@@ -118,7 +117,7 @@ def noise_program(
     def columns(keys):
         return jax.tree_util.tree_map(noise_columns, jax.vmap(one)(keys))
 
-    return jax.jit(columns, compiler_options=loop_options())
+    return jax.jit(columns)
 
 
 def eval_noise(plant: LoopPlant, keys: jax.Array, n_test: int, test_policy: str) -> EvalNoise:
@@ -367,9 +366,9 @@ def make_loop_program(
 
     # the carry is donated: run_learning never reads the old one, and XLA then updates the
     # learner's sufficient statistics in place instead of copying them (~110 MB on the funnel)
-    step_program = jax.jit(step, donate_argnums=0, compiler_options=loop_options())
+    step_program = jax.jit(step, donate_argnums=0)
 
-    @functools.partial(jax.jit, donate_argnums=0, compiler_options=loop_options())
+    @functools.partial(jax.jit, donate_argnums=0)
     def steps(carry: _Carry, keys, noise, ns, ps, which):
         """Iterations ``ns [B]`` of every lane as one ``lax.scan`` of ``step`` (``ps [B, M]``
         their policy fractions, ``which [M]``): the carry after them and their rows stacked,
