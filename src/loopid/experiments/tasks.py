@@ -52,10 +52,11 @@ def plan(rd: RunDir, todo, seeds: np.ndarray, family: Family, groups=None) -> li
     that is one chunk is saved as a cell, with no chunk files. ``groups`` (:func:`lane_sets`):
     the methods of a lane set that miss the same seeds run as one task per chunk (its
     ``method`` the tuple of them)."""
-    width = chunks.lane_width(len(seeds))
-    # chunked families: every chunk one lane width (one program shape for any seed count)
-    most = width if family.memory else len(seeds)
-    least = (width if not backend.accelerator() else chunks.MIN_CHUNK) if family.memory else 1
+    if family.memory:  # chunked: on a CPU every chunk one lane width (one program shape)
+        most = chunks.lane_width(len(seeds))
+        least = chunks.MIN_CHUNK if backend.accelerator() else most
+    else:
+        most, least = len(seeds), 1
     missing = {
         (s.name, m): tuple(chunks.ChunkFiles(rd.cells, s.name, m).missing(len(seeds)))
         for s, m in todo
