@@ -143,9 +143,9 @@ def run_policy_gradient(
     _, P = budget(samples, horizon, plant.horizon, samples_mode=samples_mode)
     used = spent(samples, horizon, plant.horizon, samples_mode=samples_mode)
     keys = seed_keys(seeds)
-    K1, info = jax.jit(lambda: agent.policy(agent.init()))()  # one program, not one an operation
+    K1, info = agent.policy(agent.init())
     m = plant.n_action
-    base, free = jax.jit(lambda K: pg_base(plant, K, hold=hold))(K1)
+    base, free = pg_base(plant, K1, hold=hold)
     one_step = make_pg_step(
         plant, base, free, samples=samples, horizon=horizon, sigma=sigma,
         nu_state_var=nu_state_var, cost_cap=cost_cap, samples_mode=samples_mode, update=update,
@@ -173,15 +173,8 @@ def run_policy_gradient(
     if noise is None:
         noise = eval_noise(plant, keys, n_test, "last").test
     S = keys.shape[0]
-
-    free = np.asarray(free)  # init_state reads its count of free entries
-
-    @jax.jit
-    def start():
-        one = init_state(free, step * sigma * np.sqrt(m), probes=P)
-        return jax.tree_util.tree_map(lambda a: jnp.broadcast_to(a, (S, *a.shape)), one)
-
-    state = start()
+    one = init_state(free, step * sigma * np.sqrt(m), probes=P)
+    state = jax.tree_util.tree_map(lambda a: jnp.broadcast_to(a, (S, *a.shape)), one)
     state, rows = drive(
         lambda: (state, jax.jit(evaluate)(state.theta, noise)),
         lambda state, it: advance(state, keys, noise, jnp.int32(it)),
