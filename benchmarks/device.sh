@@ -7,7 +7,7 @@
 #
 # 1. `loopid reproduce` (the whole of Figure 2 and the MDP study), cold: its report.md
 #    (backend, device, wall time) and both tables, to compare with a CPU's
-#    (docs/benchmarks.md, section "gpu").
+#    (docs/development/benchmark-history.md, section "gpu").
 # 2. `loopid reproduce --quick`, cold, with the default workers (threads sharing one GPU) and
 #    with --workers 1 (one cell after another): the time each takes, and both tables (the same
 #    seeds give the same table on one backend whatever the workers).
