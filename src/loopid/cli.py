@@ -270,6 +270,7 @@ def plot(
 def main(argv: list[str] | None = None) -> None:
     """Console-script entry point: user errors exit 2 with one line, never a traceback."""
     from loopid.experiments.executors import compile_cache
+    from loopid.settings.checks import printable
 
     compile_cache()
     try:
@@ -281,14 +282,14 @@ def main(argv: list[str] | None = None) -> None:
         message = e.format_message() if hasattr(e, "format_message") else str(e)
         if not message.strip():  # no arguments: the help was printed
             sys.exit(2)
-        typer.echo(f"loopid: error: {' '.join(message.split())}", err=True)
+        typer.echo(f"loopid: error: {printable(message, None)}", err=True)
         sys.exit(2)
     except Exception as e:  # a failure, not bad input: one line (LOOPID_DEBUG=1 shows it all)
         if os.environ.get("LOOPID_DEBUG"):
             raise
-        message = " ".join(str(e).split()) or "no message"
+        message = printable(e, 500) or "no message"
         if "RESOURCE_EXHAUSTED" in message or "Out of memory" in message:
             message = "out of memory; lower --memory, --workers or --seeds"
-        typer.echo(f"loopid: error: {type(e).__name__}: {message[:500]}", err=True)
+        typer.echo(f"loopid: error: {type(e).__name__}: {message}", err=True)
         sys.exit(1)
     sys.exit(code if isinstance(code, int) else 0)

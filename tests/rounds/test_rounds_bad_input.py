@@ -119,3 +119,91 @@ def test_mpc_controller_is_not_exported_as_c(tmp_path, capsys):
     assert "controller 1 plans online (MPC on the learned model): it has no gains" in err
     assert snapshot(root) == before
     assert rounds.export(root, "json").is_file()
+
+
+def _printable_line(err: str) -> bool:
+    return err.count("\n") == 1 and all(c.isprintable() for c in err.rstrip("\n"))
+
+
+@pytest.mark.parametrize(
+    ("name", "write", "message"),
+    [
+        ("parquet-as.csv", "parquet", "a .csv file holds text, this one holds Parquet (rename it"),
+        ("csv-as.parquet", "csv", "a .parquet file holds Parquet, this one holds text (a CSV"),
+        ("zip.csv", "zip", "a .csv file holds text, this one holds a ZIP archive"),
+        ("binary.csv", "binary", "a .csv file holds text, this one holds binary data"),
+        ("plain.csv.gz", "csv", "a .csv.gz file holds gzip-compressed data, this one holds text"),
+        ("rows.txt", "csv", "a round's file is .parquet, .pq, .csv, .csv.gz, .csv.bz2, .csv.zst"),
+    ],
+)
+def test_a_wrong_format_for_its_suffix_is_one_printable_line(
+    started, tmp_path, capsys, name, write, message
+):
+    """A Parquet file named .csv (raw binary with NUL bytes, that the CSV reader once quoted to
+    the terminal) and the like: one printable line naming the suffix and the format found."""
+    root, _, rows = started
+    path = tmp_path / name
+    if write == "parquet":
+        write_round(tmp_path / "rows.parquet", rows)
+        path.write_bytes((tmp_path / "rows.parquet").read_bytes())
+        assert b"\x00" in path.read_bytes()
+    elif write == "csv":
+        write_round(tmp_path / "rows.csv", rows)
+        path.write_bytes((tmp_path / "rows.csv").read_bytes())
+    elif write == "zip":
+        np.savez(path.with_suffix(".npz"), x=np.ones(3))
+        path.write_bytes(path.with_suffix(".npz").read_bytes())
+    else:
+        path.write_bytes(b"p,v\n\x00\x01\x02\x1b[31m\xff\xfe\n")
+    before = snapshot(root)
+    code, err = loopid(capsys, "round", "update", root, path)
+    assert code == 2 and _printable_line(err) and message in err, repr(err)
+    assert f"'{path}'" in err
+    assert snapshot(root) == before
+
+
+def _csv_with(rows, column: str, row: int, text: str) -> bytes:
+    """The rows as CSV text with the field ``column`` of data row ``row`` replaced by ``text``."""
+    lines = [",".join(rows)] + [
+        ",".join(str(rows[k][i]) for k in rows) for i in range(len(rows["p"]))
+    ]
+    cells = lines[row + 1].split(",")
+    cells[list(rows).index(column)] = text
+    lines[row + 1] = ",".join(cells)
+    return ("\n".join(lines) + "\n").encode()
+
+
+@pytest.mark.parametrize(
+    ("column", "row", "text", "message"),
+    [
+        ("v", 12, "NaN", "column 'v' holds nan at row 12"),
+        ("next_p", 3, "-inf", "column 'next_p' holds -inf at row 3"),
+        ("f", 30, "", "column 'f' has an empty value at row 30"),
+        ("p", 17, "NA", "column 'p' must hold numbers; it holds 'NA' at row 17"),
+        ("p", 21, "1.5e", "column 'p' must hold numbers; it holds '1.5e' at row 21"),
+        ("source", 9, "expert", "unknown source label(s) ['expert'] (first at row 9)"),
+    ],
+)
+def test_a_bad_value_names_its_row_and_column(
+    started, tmp_path, capsys, column, row, text, message
+):
+    """A literal NaN in a CSV is a number that is not finite (it was once an "empty value" with
+    no row); rows count from 0, the header excluded."""
+    root, _, rows = started
+    rows["source"] = list(rows["source"])
+    path = tmp_path / "bad.csv"
+    path.write_bytes(_csv_with(rows, column, row, text))
+    before = snapshot(root)
+    code, err = loopid(capsys, "round", "update", root, path)
+    assert code == 2 and _printable_line(err) and message in err, err
+    assert snapshot(root) == before
+
+
+def test_a_step_out_of_range_names_its_row(tmp_path, capsys):
+    rng = np.random.default_rng(8)
+    root = tmp_path / "dir"
+    rounds.init(root, write_config(tmp_path / "c.toml", model="time_varying = true"))
+    rows = transitions(rng, 40, t=True)
+    rows["t"][25] = 30
+    code, err = loopid(capsys, "round", "update", root, write_round(tmp_path / "t.csv", rows))
+    assert code == 2 and "column 't' must be steps 0..29; it holds 30 at row 25" in err, err

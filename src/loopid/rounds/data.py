@@ -10,9 +10,14 @@ units, and these columns (names from the config's ``[system]``):
 - ``t`` (the step within its episode, ``0 <= t < horizon``): required for a time-varying model,
   otherwise optional and unused. Other columns are kept in the saved copy and otherwise ignored.
 
-The file holds exactly ``[rounds] samples`` rows. It is recognised by the SHA-256 of its bytes,
-so the same file is never learned from twice. Every problem is one line of ``ValueError``
-naming the file and the bad column, value or row, found before anything is written.
+The file is Parquet (``.parquet``, ``.pq``, any compression) or CSV (``.csv``, or ``.csv.gz``,
+``.csv.bz2``, ``.csv.zst`` compressed); its first bytes must be what its suffix says
+(:func:`sniff`). In a CSV file only an empty field is an empty value; ``nan``, ``inf`` are
+numbers, refused as not finite. The file holds exactly ``[rounds] samples`` rows. It is
+recognised by the SHA-256 of its bytes, so the same file is never learned from twice (the same
+rows in another file: :mod:`loopid.rounds.checks`). Every problem is one line of printable
+``ValueError`` naming the file and the bad column and row (rows count from 0, the header
+excluded), found before anything is written.
 """
 
 import hashlib
@@ -27,6 +32,7 @@ import pyarrow.parquet as pq
 
 from loopid.algorithms.contracts import Transitions
 from loopid.rounds.config import RoundsConfig
+from loopid.settings.checks import printable
 
 SOURCES = ("nu", "policy")
 
@@ -57,32 +63,106 @@ def digest_of(path) -> str:
     return hashlib.sha256(Path(path).read_bytes()).hexdigest()
 
 
-def _table(path: Path) -> pa.Table:
-    suffix = path.suffix.lower()
+#: The first bytes of the formats a round's file may be mistaken for (a table of magic numbers,
+#: as ``file(1)`` keeps, for the handful of formats an engineer's logger writes; a library such
+#: as ``python-magic`` would add a system dependency for these few lines).
+MAGIC = {
+    b"PAR1": "Parquet", b"PK\x03\x04": "a ZIP archive (.npz, .xlsx)",
+    b"\x1f\x8b": "gzip-compressed data", b"\x28\xb5\x2f\xfd": "zstd-compressed data",
+    b"BZh": "bzip2-compressed data", b"\xfd7zXZ\x00": "xz-compressed data",
+    b"\x04\x22\x4d\x18": "lz4-compressed data", b"ARROW1": "Arrow IPC (Feather)",
+    b"\x89HDF\r\n\x1a\n": "HDF5", b"\x93NUMPY": "a NumPy .npy array",
+}  # fmt: skip
+#: What each accepted suffix must hold.
+SUFFIXES = {
+    ".parquet": "Parquet", ".pq": "Parquet", ".csv": "text",
+    ".csv.gz": "gzip-compressed data", ".csv.bz2": "bzip2-compressed data",
+    ".csv.zst": "zstd-compressed data",
+}  # fmt: skip
+
+
+def sniff(path: Path) -> str:
+    """What the file holds, from its first bytes: a :data:`MAGIC` format, ``binary data`` (a NUL
+    byte or bytes that are not UTF-8 in the first 8 KiB) or ``text``."""
+    with open(path, "rb") as f:
+        head = f.read(8192)
+    for magic, what in MAGIC.items():
+        if head.startswith(magic):
+            return what
     try:
-        if suffix in (".parquet", ".pq"):
+        head.decode("utf-8")
+    except UnicodeDecodeError as err:  # a multi-byte character cut at the 8 KiB boundary is text
+        if err.start < len(head) - 4:
+            return "binary data"
+    return "binary data" if b"\x00" in head else "text"
+
+
+def _suffix(path: Path) -> str:
+    name = path.name.lower()
+    return next((s for s in sorted(SUFFIXES, key=len, reverse=True) if name.endswith(s)), "")
+
+
+def _table(path: Path) -> pa.Table:
+    """The file's table; one printable line naming a suffix that is not a round file's, or a
+    content that is not what the suffix says."""
+    suffix = _suffix(path)
+    if not suffix:
+        raise ValueError(
+            f"{str(path)!r}: a round's file is {', '.join(SUFFIXES)}, got "
+            f"{printable(path.suffix.lower()) or 'no suffix'!r}"
+        )
+    found = sniff(path)
+    if found != SUFFIXES[suffix]:
+        hint = {"Parquet": " (rename it .parquet)", "text": " (a CSV file? rename it .csv)"}
+        raise ValueError(
+            f"{str(path)!r}: a {suffix} file holds {SUFFIXES[suffix]}, this one holds "
+            f"{found}{hint.get(found, '')}"
+        )
+    try:
+        if SUFFIXES[suffix] == "Parquet":
             return pq.read_table(path)
-        if suffix == ".csv":
-            return pacsv.read_csv(path)
+        # only an empty field is empty: "NaN" is a number (refused as not finite, by its row)
+        return pacsv.read_csv(path, convert_options=pacsv.ConvertOptions(null_values=[""]))
     except (OSError, pa.ArrowException) as err:
-        raise ValueError(f"{str(path)!r}: cannot read it ({str(err).splitlines()[0]})") from None
-    raise ValueError(f"{str(path)!r}: a round's file is .parquet or .csv, got {suffix or 'none'!r}")
+        raise ValueError(f"{str(path)!r}: cannot read it ({printable(err)})") from None
+
+
+def _first(bad: np.ndarray) -> str:
+    """``row R`` of the first True of ``bad`` (and how many more)."""
+    rows = np.flatnonzero(bad)
+    more = f" (and {rows.size - 1} more)" if rows.size > 1 else ""
+    return f"row {rows[0]}{more}"
 
 
 def _numbers(table: pa.Table, names, where: str) -> np.ndarray:
     cols = []
     for name in names:
         col = table.column(name)
-        if not (pa.types.is_floating(col.type) or pa.types.is_integer(col.type)):
-            raise ValueError(f"{where}: column {name!r} must hold numbers, it holds {col.type}")
         if col.null_count:
-            raise ValueError(f"{where}: column {name!r} has {col.null_count} empty value(s)")
+            empty = np.asarray(col.is_null().to_numpy(zero_copy_only=False))
+            raise ValueError(f"{where}: column {name!r} has an empty value at {_first(empty)}")
+        if not (pa.types.is_floating(col.type) or pa.types.is_integer(col.type)):
+            values = col.to_pylist()
+            bad = np.array([not _is_number(v) for v in values])
+            at = _first(bad) if bad.any() else "row 0"
+            shown = printable(repr(values[int(np.argmax(bad))]), 40) if bad.any() else ""
+            raise ValueError(
+                f"{where}: column {name!r} must hold numbers; it holds {shown or col.type} at {at}"
+            )
         v = col.to_numpy().astype(np.float64)
-        bad = np.flatnonzero(~np.isfinite(v))
-        if bad.size:
-            raise ValueError(f"{where}: column {name!r} holds {v[bad[0]]} at row {bad[0]}")
+        bad = ~np.isfinite(v)
+        if bad.any():
+            raise ValueError(f"{where}: column {name!r} holds {v[bad][0]} at {_first(bad)}")
         cols.append(v)
     return np.stack(cols, axis=1)
+
+
+def _is_number(v) -> bool:
+    try:
+        float(v)
+    except (TypeError, ValueError):
+        return False
+    return not isinstance(v, bool)
 
 
 def read_round(path, config: RoundsConfig) -> RoundData:
@@ -113,15 +193,22 @@ def read_round(path, config: RoundsConfig) -> RoundData:
     if not (pa.types.is_string(source.type) or pa.types.is_large_string(source.type)):
         raise ValueError(f"{where}: column 'source' must hold 'nu' or 'policy', got {source.type}")
     labels = np.asarray(source.to_pylist(), dtype=object)
-    unknown = sorted({str(s) for s in labels if s not in SOURCES})
-    if unknown:
-        raise ValueError(f"{where}: unknown source label(s) {unknown}; allowed: nu, policy")
+    bad = np.array([s not in SOURCES for s in labels])
+    if bad.any():
+        unknown = sorted({printable(s, 40) for s in labels[bad]})
+        raise ValueError(
+            f"{where}: unknown source label(s) {unknown} (first at {_first(bad)}); "
+            "allowed: nu, policy"
+        )
     t = np.zeros(table.num_rows, np.int64)
     if "t" in table.column_names:
         tt = _numbers(table, ["t"], where)[:, 0]
-        if config.time_varying and (np.any(tt != np.round(tt)) or tt.min() < 0
-                                    or tt.max() >= config.horizon):  # fmt: skip
-            raise ValueError(f"{where}: column 't' must be steps 0..{config.horizon - 1}")
+        bad = (tt != np.round(tt)) | (tt < 0) | (tt >= config.horizon)
+        if config.time_varying and bad.any():
+            raise ValueError(
+                f"{where}: column 't' must be steps 0..{config.horizon - 1}; it holds "
+                f"{tt[bad][0]:g} at {_first(bad)}"
+            )
         t = tt.astype(np.int64) if config.time_varying else t
     return RoundData(
         _numbers(table, states, where), _numbers(table, actions, where),

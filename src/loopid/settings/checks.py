@@ -1,6 +1,6 @@
 """Value checks with one-line errors, shared by every config dataclass (an experiment's
 scenario, a round directory's config): each error is a ``ValueError`` whose one line names the
-bad value and what is allowed.
+bad value and what is allowed (:func:`printable`: nothing a terminal would act on).
 """
 
 import dataclasses
@@ -36,3 +36,12 @@ def check_choice(name: str, v, allowed: Sequence[str]) -> None:
     """``ValueError`` unless ``v`` is one of ``allowed``."""
     if not isinstance(v, str) or v not in allowed:
         raise ValueError(f"{name} must be one of {', '.join(allowed)}, got {v!r}")
+
+
+def printable(text, limit: int | None = 500) -> str:
+    """``text`` as one line with nothing a terminal would act on: runs of whitespace become one
+    space; control characters, the replacement character of undecodable bytes and every other
+    unprintable character become ``?``; at most ``limit`` characters (None: no limit)."""
+    text = " ".join(str(text).split())
+    text = "".join(c if c.isprintable() and c != "\ufffd" else "?" for c in text)
+    return text if limit is None or len(text) <= limit else text[: limit - 1] + "…"
