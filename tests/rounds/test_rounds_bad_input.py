@@ -207,3 +207,27 @@ def test_a_step_out_of_range_names_its_row(tmp_path, capsys):
     rows["t"][25] = 30
     code, err = loopid(capsys, "round", "update", root, write_round(tmp_path / "t.csv", rows))
     assert code == 2 and "column 't' must be steps 0..29; it holds 30 at row 25" in err, err
+
+
+@pytest.mark.parametrize(
+    ("damaged", "commands"),
+    [
+        ("state.npz", ("update", "export")),
+        ("controllers/round-002.npz", ("export",)),  # update writes controller 3, reads none
+        ("data/round-001.parquet", ("update",)),
+    ],
+)
+def test_a_damaged_round_directory_file_is_named(started, tmp_path, capsys, damaged, commands):
+    """A truncated file of the round directory: one line naming it, exit 2, nothing recomputed
+    or rewritten (the directory holds what was given; only a copy can restore it)."""
+    root, _, rows = started
+    path = root / damaged
+    path.write_bytes(path.read_bytes()[:100])
+    before = snapshot(root)
+    new = write_round(tmp_path / "new.parquet", rows)
+    args = {"update": ("update", root, new), "export": ("export", root, "--format", "json")}
+    for command in commands:
+        code, err = loopid(capsys, "round", *args[command])
+        assert code == 2 and _printable_line(err), err
+        assert f"'{path}' is damaged (" in err and "restore it from a copy" in err, err
+    assert snapshot(root) == before

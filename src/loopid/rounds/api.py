@@ -24,9 +24,9 @@ import numpy as np
 from loopid.algorithms.host_agent import CompiledAgent, compiled_agent
 from loopid.algorithms.loop_program import batch_losses
 from loopid.files import write_atomic
-from loopid.rounds import report
+from loopid.rounds import checks, report
 from loopid.rounds.config import RoundsConfig, read_config
-from loopid.rounds.data import RoundData, read_round, transitions
+from loopid.rounds.data import read_round, transitions
 from loopid.rounds.state import (
     CONFIG,
     REPORT,
@@ -99,15 +99,15 @@ def init(root, config_path) -> Path:
     return controller_path(root, 1)
 
 
-def _past_rows(root, config: RoundsConfig, state: RoundState) -> list[RoundData]:
-    """The committed rounds' data (one file per update, by the controller that collected it)."""
-    return [read_round(data_path(root, n), config) for n in range(1, state.round)]
-
-
-def update(root, path) -> Update:
+def update(root, path, *, accept_split: bool = False) -> Update:
     """One iteration of Algorithm 1 on the transitions of the file ``path``
     (:mod:`loopid.rounds.data`): the learner's step, the new model solved, controller N + 1
-    written, ``round.md`` rewritten, then the state committed (:mod:`loopid.rounds.state`)."""
+    written, ``round.md`` rewritten, then the state committed (:mod:`loopid.rounds.state`).
+
+    Refused (one-line ``ValueError``, nothing written): a file already given, one whose rows
+    were all learned already, one whose split of policy and ν rows is far from the plan's
+    (unless ``accept_split``; :mod:`loopid.rounds.checks`). A file that shares some rows with
+    earlier ones is learned with a :class:`~loopid.rounds.checks.RoundWarning`."""
     root = Path(root)
     config = load_config(root)
     compiled = _agent(config)
@@ -117,6 +117,9 @@ def update(root, path) -> Update:
     if data.digest in state.digests:
         given = state.digests.index(data.digest) + 1
         raise ValueError(f"{str(path)!r} was already given (the data of round {given})")
+    past = checks.learned_rows(root, config, state)
+    checks.split(path, data, config, state.round, accept_split)
+    checks.overlap(path, data, past, state, config)
     batch = transitions(data, config)
     take = jnp.asarray(data.policy)
     pol = batch._replace(mask=batch.mask & take)
@@ -124,7 +127,6 @@ def update(root, path) -> Update:
     loss_nu, loss_pol, loss_batch = batch_losses(agent, state.learner, pol, nu, take)
     learner = jax.jit(agent.update)(state.learner, batch)
     n = state.round
-    past = _past_rows(root, config, state)
     loss = jax.jit(agent.loss)
     per_round = [float(jnp.mean(loss(learner, transitions(d, config)))) for d in [*past, data]]
     rows = [d.x.shape[0] for d in [*past, data]]
@@ -138,7 +140,8 @@ def update(root, path) -> Update:
         regret=loss_sum - float(np.sum(per_round)),
     )  # fmt: skip
     arrays = _controller_arrays(config, compiled, learner)
-    new = RoundState(n + 1, learner, loss_sum, (*state.digests, data.digest), (*state.history, row))
+    digests, files = (*state.digests, data.digest), (*state.files, str(path))
+    new = RoundState(n + 1, learner, loss_sum, digests, (*state.history, row), files)
     data_path(root, n).parent.mkdir(exist_ok=True)
     write_atomic(data.table, data_path(root, n))
     write_npz(controller_path(root, n + 1), arrays)

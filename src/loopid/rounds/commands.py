@@ -1,10 +1,12 @@
 """``loopid round init|update|export``: the command line of :mod:`loopid.rounds`.
 
-Bad input (a config or a file that does not fit, a file already given) is a ``ValueError`` of
-one line: the ``loopid`` command prints it and exits with code 2, and the round directory is
-left as it was.
+Bad input (a config or a file that does not fit, a file or rows already given, a split far
+from the plan) is a ``ValueError`` of one line: the ``loopid`` command prints it and exits with
+code 2, and the round directory is left as it was. A warning about a file that was learned
+from (:class:`~loopid.rounds.checks.RoundWarning`) is one line on stderr, ``loopid: warning:``.
 """
 
+import warnings
 from pathlib import Path
 
 import typer
@@ -37,12 +39,28 @@ def update(
     file: Path = typer.Argument(
         ..., metavar="FILE", help="This round's transitions (.parquet or .csv)."
     ),
+    accept_split: bool = typer.Option(
+        False,
+        "--accept-split",
+        help="Learn from FILE even if its split of policy and nu rows "
+        "is far from round.md's plan (outside the 99.9 % binomial interval).",
+    ),
 ) -> None:
     """One iteration: learn from FILE's transitions, solve the new model, write the next
-    controller and DIR/round.md. A file already given is refused."""
+    controller and DIR/round.md. A file already given, or one whose rows were all learned
+    already, is refused; so is a split far from the plan, unless --accept-split."""
     from loopid import rounds
+    from loopid.rounds.checks import RoundWarning
+    from loopid.settings.checks import printable
 
-    done = rounds.update(root, file)
+    with warnings.catch_warnings(record=True) as said:
+        warnings.simplefilter("always", RoundWarning)
+        done = rounds.update(root, file, accept_split=accept_split)
+    for w in said:
+        if issubclass(w.category, RoundWarning):
+            typer.echo(f"loopid: warning: {printable(w.message, None)}", err=True)
+        else:
+            warnings.showwarning(w.message, w.category, w.filename, w.lineno)
     r = done.row
     before = [f"{r[k]:.4g} on {w} rows" for k, w in (("loss_nu", "nu"), ("loss_policy", "policy"))
               if r[k] is not None]  # fmt: skip

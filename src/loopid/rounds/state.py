@@ -4,7 +4,8 @@ Layout of ``DIR``::
 
     config.toml               the config, as given to ``loopid round init``
     state.npz                 the learner's state, the round counter, the files already given
-                              (their SHA-256) and each round's diagnostics: the commit record
+                              (their SHA-256 and the names they were given by) and each round's
+                              diagnostics: the commit record
     controllers/round-NNN.npz controller N (π_N): gains K [horizon, m, n] in Δx = [o − o*; 1]
                               (a = a_op − K_t Δx), or the model an MPC controller re-plans on
     data/round-NNN.parquet    the transitions collected while controller N was deployed
@@ -19,6 +20,7 @@ learner's new state.
 """
 
 import json
+import zipfile
 from pathlib import Path
 from typing import Any, NamedTuple
 
@@ -42,6 +44,8 @@ class RoundState(NamedTuple):
         update (the online loss times the number of updates).
       digests: the SHA-256 of every file already given, in order.
       history: one dict of diagnostics per update (:mod:`loopid.rounds.report`).
+      files: the path each of those files was given by, in order (what a refusal of the same
+        rows names; empty for a directory written before the paths were kept).
     """
 
     round: int
@@ -49,6 +53,7 @@ class RoundState(NamedTuple):
     loss_sum: float
     digests: tuple
     history: tuple
+    files: tuple = ()
 
 
 def controller_path(root, n: int) -> Path:
@@ -81,12 +86,18 @@ def write_npz(path: Path, arrays: dict) -> None:
 
 
 def read_npz(path: Path) -> dict:
-    """Every array of an ``.npz`` file; one-line ValueError when it is missing or unreadable."""
+    """Every array of an ``.npz`` file; one-line ValueError naming it when it is missing or
+    cannot be read (a round directory's files are not computed again: they hold what was given)."""
+    if not Path(path).is_file():
+        raise ValueError(f"{str(path)!r} is missing")
     try:
-        with np.load(path, allow_pickle=False) as z:
+        with open(path, "rb") as f, np.load(f, allow_pickle=False) as z:  # closes a bad zip too
             return {k: z[k] for k in z.files}
-    except (OSError, ValueError) as err:
-        raise ValueError(f"{str(path)!r}: cannot read it ({str(err).splitlines()[0]})") from None
+    except (OSError, ValueError, EOFError, zipfile.BadZipFile) as err:
+        what = " ".join(str(err).split()) or type(err).__name__
+        raise ValueError(
+            f"{str(path)!r} is damaged ({what}); restore it from a copy of the round directory"
+        ) from None
 
 
 def _is_key(v) -> bool:
@@ -110,7 +121,7 @@ def save_state(root, state: RoundState) -> None:
     leaves = jax.tree_util.tree_leaves(state.learner)
     meta = {
         "round": state.round, "loss_sum": state.loss_sum, "digests": list(state.digests),
-        "history": list(state.history),
+        "history": list(state.history), "files": list(state.files),
     }  # fmt: skip
     arrays = {f"leaf_{i}": _plain(v) for i, v in enumerate(leaves)}
     write_npz(Path(root) / STATE, {**arrays, "meta": np.asarray(json.dumps(meta))})
@@ -132,5 +143,5 @@ def load_state(root, template) -> RoundState:
     )
     return RoundState(
         int(meta["round"]), learner, float(meta["loss_sum"]), tuple(meta["digests"]),
-        tuple(meta["history"]),
+        tuple(meta["history"]), tuple(meta.get("files", ())),
     )  # fmt: skip
