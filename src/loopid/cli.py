@@ -262,8 +262,11 @@ def plot(
     """Remake DIR/figure.png and DIR/report.md from DIR/results.parquet (nothing is rerun)."""
     from loopid.experiments.execute import write_outputs
     from loopid.experiments.results import load_results
+    from loopid.experiments.rundir import RunDir
 
-    write_outputs(run_dir, load_results(run_dir))
+    table = load_results(run_dir)
+    RunDir(run_dir).check_artifacts()  # a damaged cell named before anything is drawn
+    write_outputs(run_dir, table)
     typer.echo(f"wrote {run_dir / 'figure.png'} and {run_dir / 'report.md'}", err=True)
 
 

@@ -217,6 +217,29 @@ def test_chunked_cell_equals_one_chunk_and_resumes_after_a_kill(tmp_path, monkey
     assert info["seeds"] == list(range(7))
 
 
+def test_a_damaged_saved_chunk_is_moved_aside_and_its_seeds_run_again(tmp_path, capsys):
+    """A killed chunked run left two chunks, one of them truncated since: the rerun's check
+    (:meth:`RunDir.finished`) moves that chunk's files to ``cells/damaged/``, names it in one
+    line, and its seeds are missing again; the sound chunk is kept."""
+    from loopid.experiments.results import SCHEMA
+    from loopid.experiments.rundir import RunDir
+
+    files = chunks.ChunkFiles(tmp_path / "cells", "hover", "dagger-t")
+    for start in (0, 3):
+        seeds = np.arange(start, start + 3)
+        files.save(chunks.Chunk(start, start + 3, seeds), SCHEMA.empty_table(), {"K": seeds})
+    npz = files.stem(0, 3).with_suffix(".npz")
+    npz.write_bytes(npz.read_bytes()[:-10])
+    assert not RunDir(tmp_path).finished("hover", "dagger-t")
+    assert files.finished() == [(3, 6)] and files.missing(6) == [0, 1, 2]
+    assert sorted(p.name for p in (tmp_path / "cells" / "damaged").iterdir()) == [
+        "hover__dagger-t.chunks.000000000-000000003.npz",
+        "hover__dagger-t.chunks.000000000-000000003.parquet",
+    ]
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and f"'{npz}' is damaged (" in err[0], err
+
+
 _PEAK = textwrap.dedent(
     """
     import resource, sys, numpy as np

@@ -227,3 +227,85 @@ def test_runs_need_their_own_directories(tmp_path):
     with pytest.raises(ValueError, match="scenario names must differ, got"):
         execute.run_cells(tmp_path / "b", [SCENARIOS[0], SCENARIOS[0]], METHODS)
     assert list(tmp_path.iterdir()) == []
+
+
+def _loopid(capsys, *args) -> tuple[int, list[str]]:
+    from loopid.cli import main
+
+    with pytest.raises(SystemExit) as e:
+        main([str(a) for a in args])
+    return e.value.code, capsys.readouterr().err.strip().splitlines()
+
+
+def test_a_damaged_cell_file_is_named_then_moved_aside_and_computed_again(
+    finished, tmp_path, counted, capsys
+):
+    """A truncated ``cells/*.npz`` (it once gave ``BadZipFile`` and exit 1 with no file named):
+    ``loopid evaluate``, ``plot`` and ``animate`` name it in one line and exit 2, ``loopid.load``
+    raises naming it, nothing recomputed or written; the rerun moves the cell's files to
+    ``cells/damaged/`` (one line on stderr), computes that cell alone again and ends with the
+    table and artifacts of the undamaged run."""
+    import loopid
+    from loopid.experiments import artifacts
+
+    out = tmp_path / "run"
+    shutil.copytree(finished, out)
+    npz = out / "cells" / "hover__expert.npz"
+    truncated = npz.read_bytes()[: npz.stat().st_size // 2]
+    npz.write_bytes(truncated)
+    before = {f: f.read_bytes() for f in out.rglob("*") if f.is_file()}
+    for args in (
+        ["evaluate", out, "--scenario", "hover"],
+        ["plot", out],
+        ["animate", out, "--method", "expert", "--out", tmp_path / "a.gif"],
+    ):
+        code, err = _loopid(capsys, *args)
+        assert code == 2 and len(err) == 1, err
+        assert err[0].startswith(f"loopid: error: '{npz}' is damaged (") and "again" in err[0]
+    with pytest.raises(artifacts.Damaged, match=r"hover__expert\.npz' is damaged") as e:
+        loopid.load(out, "hover", "expert", 0)
+    assert e.value.path == npz
+    after = {f: f.read_bytes() for f in out.rglob("*") if f.is_file()}
+    assert after == before and not (tmp_path / "a.gif").exists() and counted == []
+
+    table = execute.run_cells(out, SCENARIOS, METHODS)
+    assert counted == [("hover", "expert")]  # that cell alone
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and f"'{npz}' is damaged (" in err[0], err
+    assert f"moved it to '{out / 'cells' / 'damaged'}'" in err[0]
+    assert (out / "cells" / "damaged" / "hover__expert.npz").read_bytes() == truncated
+    assert sorted(p.name for p in (out / "cells" / "damaged").iterdir()) == [
+        "hover__expert.json", "hover__expert.npz", "hover__expert.parquet",
+    ]  # fmt: skip
+    whole = read_table(finished / "results.parquet")
+    assert table.equals(whole) and read_table(out / "results.parquet").equals(whole)
+    _, again = artifacts.read(out / "cells", "hover", "expert")
+    _, before = artifacts.read(finished / "cells", "hover", "expert")
+    assert again.keys() == before.keys()
+    assert all(np.array_equal(again[k], before[k]) for k in before)
+    counted.clear()
+    assert execute.run_cells(out, SCENARIOS, METHODS).equals(whole) and counted == []
+
+
+@pytest.mark.parametrize(
+    ("name", "spoil", "why"),
+    [
+        ("hover__expert.parquet", lambda b: b[:-20], "Parquet"),
+        ("hover__expert.json", lambda b: b[:10], "Unterminated string"),
+        ("hover__expert.npz", lambda b: b[:200] + bytes([b[200] ^ 1]) + b[201:], "CRC-32"),
+        ("hover__expert.npz", lambda b: b"", "File is not a zip file"),
+    ],
+)
+def test_every_damage_to_a_cell_counts_as_unfinished(finished, tmp_path, counted, capsys,
+                                                     name, spoil, why):  # fmt: skip
+    """A truncated row file or JSON, a flipped bit in an array (the zip's CRC-32), an empty
+    npz: the file named on stderr, the cell computed again, the same table."""
+    out = tmp_path / "run"
+    shutil.copytree(finished, out)
+    path = out / "cells" / name
+    path.write_bytes(spoil(path.read_bytes()))
+    table = execute.run_cells(out, SCENARIOS, METHODS)
+    assert counted == [("hover", "expert")]
+    err = capsys.readouterr().err
+    assert f"'{path}' is damaged (" in err and why in err, err
+    assert table.equals(read_table(finished / "results.parquet"))

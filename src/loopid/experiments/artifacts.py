@@ -21,8 +21,11 @@ chunks' files one piece at a time (:class:`Stacked`), so that the cell's seeds a
 memory at once: the npz member is an ``.npy`` header (format 2.0) for the whole ``[S, ...]``
 shape followed by each piece's bytes, the joined array's bytes in ``np.savez``'s layout. Both
 files are written through a temporary name and a rename before the cell's Parquet file, so a
-finished cell always has its artifacts and a killed run leaves no half-written one. A file that
-is missing or unreadable raises one line naming it (:func:`read`).
+finished cell always has its artifacts and a killed run leaves no half-written one. A file
+that is missing or cannot be read (truncated, a zip entry whose CRC-32 does not match, arrays
+that do not match the ``.json``) raises :class:`Damaged` (:func:`read`), which names it and
+says what to do: run the command that made the directory again, which finds it (:func:`check`),
+moves the cell's files aside and computes the cell again.
 """
 
 import json
@@ -37,6 +40,21 @@ from loopid.files import replace_atomically
 
 #: The artifact format's version, in every ``.json``.
 FORMAT = 1
+#: Bytes read at a time when a file is checked (:func:`check`).
+BLOCK = 1 << 24
+
+
+class Damaged(ValueError):
+    """A run directory's file that cannot be read: ``path``, ``why``, and what to do (one
+    line; by default, for a cell's file, run the command again)."""
+
+    def __init__(self, path, why: str, remedy: str = ""):
+        self.path, self.why = Path(path), " ".join(str(why).split()) or "unreadable"
+        remedy = remedy or (
+            "run the command that made the run directory again: it moves the cell's files to "
+            "cells/damaged/ and computes the cell again"
+        )
+        super().__init__(f"{str(path)!r} is damaged ({self.why}); {remedy}")
 
 
 class Stacked(NamedTuple):
@@ -127,27 +145,74 @@ def read(cells: Path, scenario: str, method: str) -> tuple[dict, dict[str, np.nd
     """``(info, arrays)`` of one cell; ``ValueError`` with one line naming a missing or
     unreadable file, or arrays that do not match their description."""
     npz, meta = paths(cells, scenario, method)
-    for f in (meta, npz):
-        if not f.is_file():
-            raise ValueError(f"{str(f)!r} is missing: the cell has no saved model and policy")
+    info = _info(npz, meta)
     try:
-        info = json.loads(meta.read_text())
-        if info.get("format") != FORMAT:
-            raise ValueError(f"format {info.get('format')!r}, not {FORMAT}")
-        with np.load(npz, allow_pickle=False) as data:
+        with open(npz, "rb") as f, np.load(f, allow_pickle=False) as data:  # a bad zip closed
             arrays = {name: data[name] for name in data.files}
-    except (OSError, ValueError, KeyError, EOFError) as e:
-        bad = meta if isinstance(e, json.JSONDecodeError) else npz
-        what = " ".join(str(e).split()) or type(e).__name__
-        raise ValueError(f"{str(bad)!r} is not a readable loopid artifact ({what})") from None
+    except (OSError, ValueError, KeyError, EOFError, zipfile.BadZipFile) as e:
+        raise Damaged(npz, str(e) or type(e).__name__) from None
     seeds = arrays.pop("seeds", None)
     expected = info.get("arrays", {})
     if seeds is None or seeds.tolist() != info.get("seeds") or set(arrays) != set(expected):
-        raise ValueError(f"{str(npz)!r} does not match {str(meta)!r}")
+        raise Damaged(npz, f"it does not match {str(meta)!r}")
     for name, v in arrays.items():
         if list(v.shape) != expected[name]["shape"] or str(v.dtype) != expected[name]["dtype"]:
-            raise ValueError(f"{str(npz)!r}: array {name!r} does not match {str(meta)!r}")
+            raise Damaged(npz, f"array {name!r} does not match {str(meta)!r}")
     return info, {"seeds": seeds, **arrays}
+
+
+def _info(npz: Path, meta: Path) -> dict:
+    """The ``.json`` of a cell; :class:`Damaged` naming a missing file or one that is not this
+    format's JSON object (a finished cell always has both)."""
+    for f in (meta, npz):
+        if not f.is_file():
+            raise Damaged(f, "missing: the cell has no saved model and policy")
+    try:
+        info = json.loads(meta.read_bytes())
+    except (OSError, ValueError) as e:
+        raise Damaged(meta, str(e)) from None
+    if not isinstance(info, dict) or info.get("format") != FORMAT:
+        found = info.get("format") if isinstance(info, dict) else None
+        raise Damaged(meta, f"format {found!r}, not {FORMAT}")
+    return info
+
+
+def check(cells: Path, scenario: str, method: str) -> None:
+    """Raise :class:`Damaged` unless :func:`read` would
+    read the cell: the ``.json`` parses, and the ``.npz`` holds the arrays it describes
+    (:func:`check_npz`)."""
+    npz, meta = paths(cells, scenario, method)
+    info = _info(npz, meta)
+    expected = {"seeds": {"shape": [len(info.get("seeds", []))], "dtype": "int64"}}
+    check_npz(npz, expected | info.get("arrays", {}), f"its arrays do not match {str(meta)!r}")
+
+
+def check_npz(npz: Path, expected: dict | None = None, mismatch: str = "") -> None:
+    """Raise :class:`Damaged` unless every array of the ``.npz`` reads through to its end (where
+    the zip checks its CRC-32), :data:`BLOCK` bytes at a time, so that a file of any size is
+    checked in little memory; ``expected``: ``{name: {"shape": [...], "dtype": str}}`` the
+    arrays must be (``mismatch``: what to say when they are not)."""
+    try:
+        with zipfile.ZipFile(npz) as zf:
+            names = [n.removesuffix(".npy") for n in zf.namelist()]
+            if expected is not None and sorted(names) != sorted(expected):
+                raise ValueError(mismatch)
+            for name in names:
+                with zf.open(f"{name}.npy") as f:
+                    header = {(1, 0): np.lib.format.read_array_header_1_0}.get(
+                        np.lib.format.read_magic(f), np.lib.format.read_array_header_2_0
+                    )
+                    shape, _, dtype = header(f)
+                    want = (expected or {}).get(name, {"shape": list(shape), "dtype": str(dtype)})
+                    if list(shape) != want["shape"] or str(dtype) != want["dtype"]:
+                        raise ValueError(f"array {name!r}: {mismatch}")
+                    size, got = int(np.prod(shape)) * dtype.itemsize, 0
+                    while block := f.read(BLOCK):  # the zip checks the CRC-32 at the end
+                        got += len(block)
+                    if got != size:
+                        raise EOFError(f"array {name!r} holds {got} bytes, not {size}")
+    except (OSError, ValueError, KeyError, EOFError, zipfile.BadZipFile) as e:
+        raise Damaged(npz, str(e) or type(e).__name__) from None
 
 
 def for_seed(arrays: dict, seed, where: str) -> dict[str, np.ndarray]:

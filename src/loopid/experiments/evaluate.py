@@ -70,6 +70,12 @@ def evaluate_run(
         if name not in configs:
             raise ValueError(f"{run_dir} has no scenario {name!r}; it has {', '.join(configs)}")
     recorded = _recorded(run_dir)
+    path = run_dir / "evaluate.parquet"
+    try:  # the rows appended to, read before any controller flies
+        before = pq.read_table(path) if path.is_file() else None
+    except (OSError, pa.ArrowException) as e:
+        remedy = "move it away (it holds earlier evaluations) and evaluate again"
+        raise artifacts.Damaged(path, str(e), remedy) from None
     rows = []
     for name in names:
         found = (run_dir / "cells").glob(f"{name}__*.json")
@@ -101,7 +107,6 @@ def evaluate_run(
         {f.name: pa.array([r[i] for r in rows], f.type) for i, f in enumerate(SCHEMA)},
         schema=SCHEMA,
     )
-    path = run_dir / "evaluate.parquet"
-    table = pa.concat_tables([pq.read_table(path), new]) if path.is_file() else new
+    table = new if before is None else pa.concat_tables([before, new])
     write_atomic(table, path)
     return new

@@ -255,7 +255,7 @@ def _plan(r: Run, seeds, limit: int, lanes: bool, on_cell, log) -> _Planned:
     todo = []
     for s in r.scenarios:
         for m in methods_of(r.methods, s):
-            if rd.done(s.name, m):
+            if rd.finished(s.name, m):  # a damaged cell's files moved aside: not finished
                 if log:
                     log(f"{s.name} / {m}: already finished, skipped")
             else:

@@ -5,24 +5,35 @@ Layout of ``DIR``::
     config.toml           the resolved configuration (scenarios, methods, seeds, version); the
                           seeds as a count, a {start, count} range or, when given so, a list
     cells/S__M.parquet    one file per finished cell (scenario S × method M), written atomically;
-                          its metadata holds the cell's wall time
+                          its metadata holds the cell's wall time (its model and policy beside
+                          it: :mod:`loopid.experiments.artifacts`)
+    cells/damaged/        the files of cells found damaged on a rerun, moved aside
     results.parquet       all finished cells, in a fixed order (rewritten after every cell)
     figure.png, report.md drawn from results.parquet
     (:mod:`loopid.experiments.families.helicopter.figure2`,
                           :mod:`loopid.experiments.report`)
 
 A cell file exists only once its cell has finished, so a killed run loses nothing finished, and
-rerunning the same command skips the finished cells. A directory whose ``config.toml`` differs
+rerunning the same command skips the finished cells. A finished cell with a file that cannot be
+read (:meth:`RunDir.finished`: truncated, a bad checksum) counts as unfinished: its files are
+moved to ``cells/damaged/``, one line on stderr names the file, and the cell is computed again
+(its table is the same: a cell's rows depend on its configuration and seeds alone). A
+directory whose ``config.toml`` differs
 from the new run's configuration is refused rather than mixed; where only the readings differ
 (a run made under another preset), the refusal says which ``--readings`` continues it.
 """
 
+import os
+import sys
 import tomllib
+from functools import partial
 from pathlib import Path
 
 import pyarrow as pa
 import tomli_w
 
+from loopid.experiments import artifacts
+from loopid.experiments.chunks import ChunkFiles
 from loopid.experiments.families import Family, family_called, scenario_names
 from loopid.experiments.results import concat, metadata, read_table
 from loopid.experiments.seeds import seeds_from_value, seeds_value
@@ -111,6 +122,56 @@ class RunDir:
 
     def done(self, scenario: str, method: str) -> bool:
         return self.cell_file(scenario, method).exists()
+
+    def finished(self, scenario: str, method: str) -> bool:
+        """Whether the cell is finished with every file readable (its rows read whole,
+        :func:`loopid.experiments.artifacts.check`). A finished cell with a damaged file is
+        not: its files go to ``cells/damaged/`` (its rows first, so that a rerun killed
+        midway finds the cell unfinished), and one line on stderr names the file. An
+        unfinished cell's saved chunks are checked alike, a damaged one moved aside."""
+        if not self.done(scenario, method):
+            files = ChunkFiles(self.cells, scenario, method)
+            for part in files.finished():
+                stem = files.stem(*part)
+                rows, npz = stem.with_suffix(".parquet"), stem.with_suffix(".npz")
+                check = partial(artifacts.check_npz, npz)
+                self._set_aside(check, rows, npz, prefix=files.path.name)
+            return False
+        rows = self.cell_file(scenario, method)
+        npz, meta = artifacts.paths(self.cells, scenario, method)
+        check = partial(artifacts.check, self.cells, scenario, method)
+        return not self._set_aside(check, rows, npz, meta)
+
+    def _set_aside(self, check, rows: Path, *others: Path, prefix: str = "") -> bool:
+        """Read ``rows`` whole and run ``check()``; when either finds a file damaged, move
+        ``rows`` then ``others`` to ``cells/damaged/`` (names prefixed ``prefix.``), say so on
+        stderr and return True."""
+        try:
+            try:
+                read_table(rows)
+            except (OSError, ValueError, pa.ArrowException) as e:
+                raise artifacts.Damaged(rows, str(e)) from None
+            check()
+        except artifacts.Damaged as e:
+            aside = self.cells / "damaged"
+            aside.mkdir(exist_ok=True)
+            for f in (rows, *others):
+                if f.exists():
+                    os.replace(f, aside / (f"{prefix}.{f.name}" if prefix else f.name))
+            print(
+                f"loopid: warning: {str(e.path)!r} is damaged ({e.why}); moved it to "
+                f"{str(aside)!r} with the files that go with it, to be computed again",
+                file=sys.stderr,
+            )
+            return True
+        return False
+
+    def check_artifacts(self) -> None:
+        """Raise :class:`~loopid.experiments.artifacts.Damaged` naming the first finished cell
+        file that cannot be read (what ``loopid plot`` checks before it draws anything)."""
+        for rows in sorted(self.cells.glob("*__*.parquet")):
+            scenario, method = rows.stem.split("__", 1)
+            artifacts.check(self.cells, scenario, method)
 
     def save_cell(self, scenario: str, method: str, table: pa.Table) -> None:
         write_atomic(table, self.cell_file(scenario, method))
