@@ -309,3 +309,13 @@ def test_every_damage_to_a_cell_counts_as_unfinished(finished, tmp_path, counted
     err = capsys.readouterr().err
     assert f"'{path}' is damaged (" in err and why in err, err
     assert table.equals(read_table(finished / "results.parquet"))
+
+
+def test_a_damaged_evaluate_table_is_named_before_anything_flies(finished, tmp_path, capsys):
+    out = tmp_path / "run"
+    shutil.copytree(finished, out)
+    (out / "evaluate.parquet").write_bytes(b"PAR1\x00\x01")
+    code, err = _loopid(capsys, "evaluate", out)
+    assert code == 2 and len(err) == 1, err
+    assert f"'{out / 'evaluate.parquet'}' is damaged (" in err[0] and "move it away" in err[0]
+    assert (out / "evaluate.parquet").read_bytes() == b"PAR1\x00\x01"
