@@ -231,3 +231,18 @@ def test_a_damaged_round_directory_file_is_named(started, tmp_path, capsys, dama
         assert code == 2 and _printable_line(err), err
         assert f"'{path}' is damaged (" in err and "restore it from a copy" in err, err
     assert snapshot(root) == before
+
+
+def test_a_damaged_round_config_is_named(started, tmp_path, capsys):
+    """A round directory's config.toml cut short with binary after it: one printable line
+    naming it (the decoder's message once named no file)."""
+    root, _, rows = started
+    config = root / "config.toml"
+    config.write_bytes(config.read_bytes()[:50] + b"\x00\xff\xfe")
+    before = snapshot(root)
+    new = write_round(tmp_path / "new.parquet", rows)
+    for args in (("update", root, new), ("export", root)):
+        code, err = loopid(capsys, "round", *args)
+        assert code == 2 and _printable_line(err), err
+        assert f"'{config}': not UTF-8 text (byte 0xff at offset 51)" in err, err
+    assert snapshot(root) == before

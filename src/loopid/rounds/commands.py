@@ -37,7 +37,9 @@ def init(
 def update(
     root: Path = typer.Argument(..., metavar="DIR", help="The round directory."),
     file: Path = typer.Argument(
-        ..., metavar="FILE", help="This round's transitions (.parquet or .csv)."
+        ...,
+        metavar="FILE",
+        help="This round's transitions (.parquet, .pq, .csv, .csv.gz, .csv.bz2 or .csv.zst).",
     ),
     accept_split: bool = typer.Option(
         False,

@@ -17,6 +17,11 @@ def read_toml(path, what: str = "--config") -> dict:
         text = path.read_text(encoding="utf-8")
     except OSError as e:
         raise ValueError(f"{what} {str(path)!r}: cannot read it ({e.strerror})") from None
+    except UnicodeDecodeError as e:  # binary, or another encoding: TOML is UTF-8
+        raise ValueError(
+            f"{what} {str(path)!r}: not UTF-8 text (byte {e.object[e.start]:#04x} at offset "
+            f"{e.start}); a TOML file is UTF-8"
+        ) from None
     try:
         return tomllib.loads(text)
     except tomllib.TOMLDecodeError as e:
