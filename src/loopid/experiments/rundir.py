@@ -153,11 +153,15 @@ class RunDir:
                 raise artifacts.Damaged(rows, str(e)) from None
             check()
         except artifacts.Damaged as e:
+            if not rows.exists():  # another run into the directory merged or moved it meanwhile
+                return True
             aside = self.cells / "damaged"
             aside.mkdir(exist_ok=True)
             for f in (rows, *others):
-                if f.exists():
+                try:
                     os.replace(f, aside / (f"{prefix}.{f.name}" if prefix else f.name))
+                except FileNotFoundError:
+                    pass
             print(
                 f"loopid: warning: {str(e.path)!r} is damaged ({e.why}); moved it to "
                 f"{str(aside)!r} with the files that go with it, to be computed again",
