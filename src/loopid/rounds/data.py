@@ -8,7 +8,11 @@ units, and these columns (names from the config's ``[system]``):
 - ``source``: ``policy`` (the row comes from running the current controller from the start
   distribution) or ``nu`` (from the exploration distribution ν);
 - ``t`` (the step within its episode, ``0 <= t < horizon``): required for a time-varying model,
-  otherwise optional and unused. Other columns are kept in the saved copy and otherwise ignored.
+  otherwise optional and unused;
+- ``episode`` (optional): which logged episode a row belongs to (any label: its rows are the
+  episode's steps), for ``round.md``'s per-episode costs and lengths;
+- ``terminated`` (optional, true/false or 1/0): the episode ended at this row before the horizon
+  (a fall). Other columns are kept in the saved copy and otherwise ignored.
 
 The file is Parquet (``.parquet``, ``.pq``, any compression) or CSV (``.csv``, or ``.csv.gz``,
 ``.csv.bz2``, ``.csv.zst`` compressed); its first bytes must be what its suffix says
@@ -47,6 +51,8 @@ class RoundData(NamedTuple):
       t: ``[b]`` the step of each row (zeros without a ``t`` column).
       digest: the SHA-256 of the file's bytes (hex).
       table: the file's table, as read (what the round directory keeps).
+      episode: ``[b]`` the ``episode`` column's labels as text (None without the column).
+      terminated: ``[b]`` the ``terminated`` column as booleans (None without the column).
     """
 
     x: np.ndarray
@@ -56,6 +62,8 @@ class RoundData(NamedTuple):
     t: np.ndarray
     digest: str
     table: pa.Table
+    episode: np.ndarray | None = None
+    terminated: np.ndarray | None = None
 
 
 def digest_of(path) -> str:
@@ -165,6 +173,23 @@ def _is_number(v) -> bool:
     return not isinstance(v, bool)
 
 
+def _episodes(table: pa.Table, where: str) -> tuple:
+    """The optional ``episode`` labels and ``terminated`` flags (module docstring)."""
+    episode = terminated = None
+    if "episode" in table.column_names:
+        col = table.column("episode")
+        if col.null_count:
+            raise ValueError(f"{where}: column 'episode' has {col.null_count} empty value(s)")
+        episode = np.asarray([str(v) for v in col.to_pylist()])
+    if "terminated" in table.column_names:
+        col = table.column("terminated")
+        flags = np.asarray(col.to_pylist(), dtype=object)
+        if col.null_count or not all(v in (0, 1) for v in flags):  # True == 1, False == 0
+            raise ValueError(f"{where}: column 'terminated' must hold true/false or 1/0")
+        terminated = flags.astype(bool)
+    return episode, terminated
+
+
 def read_round(path, config: RoundsConfig) -> RoundData:
     """The checked transitions of ``path`` under ``config`` (module docstring)."""
     path = Path(path)
@@ -213,6 +238,7 @@ def read_round(path, config: RoundsConfig) -> RoundData:
     return RoundData(
         _numbers(table, states, where), _numbers(table, actions, where),
         _numbers(table, nexts, where), labels == "policy", t, digest_of(path), table,
+        *_episodes(table, where),
     )  # fmt: skip
 
 
