@@ -1,6 +1,7 @@
-"""After k rounds the model is FTRL's closed form on all the data (ridge with λ√n on the sums)
-and the controller is the steady-state LQR of that model (SciPy's Riccati solution as oracle);
-the C header computes the Python controller's actions."""
+"""After k rounds the model is FTRL's closed form on all the data (ridge with λ√n on the sums), in
+the columns scaled by the first round's standard deviations (or in the log's units under
+``scale = "none"``), and the controller is the steady-state LQR of that model in the log's units
+(SciPy's Riccati solution as oracle); the C header computes the Python controller's actions."""
 
 import json
 import shutil
@@ -20,16 +21,22 @@ TARGET, A_OP, LAM = np.array([0.5, 0.0]), np.array([0.1]), 0.01
 Qa, R = np.diag([1.0, 0.1, 0.0]), np.diag([0.01])
 
 
-def ridge(all_rows: list[dict]) -> np.ndarray:
-    """W [n + m, n] of (ZᵀZ + λ√N I) W = ZᵀY on every row, in Δx = [o − o*; 1], Δu = a − a_op,
-    y = Δx' − Δx (nominal A = I, B = 0)."""
+def ridge(all_rows: list[dict], scaled: bool) -> tuple:
+    """W [n + m, n] of (ZᵀZ + λ√N I) W = ZᵀY on every row, in Δx = D_x⁻¹[o − o*; 1],
+    Δu = D_u⁻¹(a − a_op), y = Δx' − Δx (nominal A = I, B = 0), D the first round's standard
+    deviations (and 1 on the constant), or I when not ``scaled``; and (A, B) in the log's units."""
+    first = all_rows[0]
+    d = np.array([np.std(first["p"]), np.std(first["v"]), 1.0]) if scaled else np.ones(3)
+    su = np.std(first["f"]) if scaled else 1.0
     c = {k: np.concatenate([r[k] for r in all_rows]) for k in ("p", "v", "f", "next_p", "next_v")}
     one = np.ones_like(c["p"])
-    dx = np.stack([c["p"] - TARGET[0], c["v"] - TARGET[1], one], 1)
-    dxn = np.stack([c["next_p"] - TARGET[0], c["next_v"] - TARGET[1], one], 1)
-    Z = np.concatenate([dx, (c["f"] - A_OP[0])[:, None]], 1)
+    dx = np.stack([c["p"] - TARGET[0], c["v"] - TARGET[1], one], 1) / d
+    dxn = np.stack([c["next_p"] - TARGET[0], c["next_v"] - TARGET[1], one], 1) / d
+    Z = np.concatenate([dx, (c["f"] - A_OP[0])[:, None] / su], 1)
     Y = dxn - dx
-    return np.linalg.solve(Z.T @ Z + LAM * np.sqrt(len(Z)) * np.eye(4), Z.T @ Y)
+    W = np.linalg.solve(Z.T @ Z + LAM * np.sqrt(len(Z)) * np.eye(4), Z.T @ Y)
+    A_s, B_s = np.eye(3) + W[:3].T, W[3:].T
+    return W, A_s * d[:, None] / d[None, :], B_s * d[:, None] / su
 
 
 def lqr_oracle(A, B) -> np.ndarray:
@@ -44,19 +51,21 @@ def lqr_oracle(A, B) -> np.ndarray:
     return np.concatenate([Kz, k[:, None]], 1)
 
 
-def test_model_is_ridge_on_all_data_and_controller_is_dlqr(tmp_path):
+@pytest.mark.parametrize("scale", ["std", "none"])
+def test_model_is_ridge_on_all_data_and_controller_is_dlqr(tmp_path, scale):
     rng = np.random.default_rng(0)
     root = tmp_path / "dir"
-    rounds.init(root, write_config(tmp_path / "c.toml"))
+    rounds.init(root, write_config(tmp_path / "c.toml", rounds=f'scale = "{scale}"'))
     given = []
     for k in range(1, 4):
         given.append(random_rows(rng, 40))
         done = rounds.update(root, write_round(tmp_path / f"r{k}.parquet", given[-1]))
         assert done.round == k + 1
         arrays = controller_arrays(root)
-        W = arrays["model_W"]
-        np.testing.assert_allclose(W, ridge(given), rtol=1e-11, atol=1e-13)
-        A, B = np.eye(3) + W[:3].T, W[3:].T
+        W, A, B = ridge(given, scale == "std")
+        np.testing.assert_allclose(arrays["model_W"], W, rtol=1e-11, atol=1e-13)
+        np.testing.assert_allclose(arrays["A"], A, rtol=1e-11, atol=1e-13)
+        np.testing.assert_allclose(arrays["B"], B, rtol=1e-11, atol=1e-13)
         K = arrays["K"]
         assert K.shape == (30, 1, 3) and np.all(K == K[0])
         np.testing.assert_allclose(K[0], lqr_oracle(A, B), rtol=1e-9, atol=1e-11)

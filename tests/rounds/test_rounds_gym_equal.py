@@ -6,7 +6,8 @@ Pendulum-v1. Its training rollouts are recorded as they are made; each iteration
 loop's own draws and mix of them (:func:`loopid.algorithms.transitions.draw`,
 :func:`loopid.algorithms.transitions.select`, with the iteration's keys), written out as a round's
 file with ``source`` from the mix. Feeding those files to ``loopid.rounds`` one by one must end on
-the run's final model ``W`` and gains ``K``.
+the run's final model ``W`` and gains ``K``. The rounds keep the log's units (``[rounds] scale =
+"none"``): the Gymnasium family's regulariser is λ/√n in the env's own units.
 """
 
 import jax
@@ -40,6 +41,7 @@ lambda = 1e-3
 [rounds]
 samples = {SAMPLES}
 method = "dagger"
+scale = "none"
 """
 
 

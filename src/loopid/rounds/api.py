@@ -26,7 +26,18 @@ from loopid.algorithms.loop_program import batch_losses
 from loopid.files import write_atomic
 from loopid.rounds import checks, report
 from loopid.rounds.config import RoundsConfig, read_config
-from loopid.rounds.data import read_round, transitions
+from loopid.rounds.data import RoundData, read_round, transitions
+from loopid.rounds.episodes import summary
+from loopid.rounds.model import gain_change, linear_model, pull
+from loopid.rounds.scale import (
+    Scale,
+    from_rows,
+    log_gains,
+    log_model,
+    scaled_config,
+    scaled_rows,
+    unit,
+)
 from loopid.rounds.state import (
     CONFIG,
     REPORT,
@@ -66,17 +77,23 @@ def load_config(root) -> RoundsConfig:
     return read_config(root / CONFIG)
 
 
-def _controller_arrays(config: RoundsConfig, compiled: CompiledAgent, learner) -> dict:
+def _controller_arrays(config: RoundsConfig, compiled: CompiledAgent, learner, sc: Scale) -> dict:
+    """Controller arrays in the log's units from the agent ``compiled`` of the scaled config."""
     K, info = jax.jit(compiled.agent.policy)(learner)
     arrays = {
         "kind": np.asarray("mpc" if compiled.mpc is not None else "gains"),
-        "K": np.asarray(K), "target": np.asarray(config.target, np.float64),
+        "K": log_gains(np.asarray(K), sc), "target": np.asarray(config.target, np.float64),
         "action_op": np.asarray(config.action_op, np.float64),
         "states": np.asarray(config.states), "actions": np.asarray(config.actions),
         "converged": np.asarray(bool(info.converged)),
+        "scale_states": sc.states, "scale_actions": sc.actions,
     }  # fmt: skip
     if compiled.agent.params is not None:
-        arrays |= {f"model_{k}": np.asarray(v) for k, v in compiled.agent.params(learner).items()}
+        params = compiled.agent.params(learner)
+        arrays |= {f"model_{k}": np.asarray(v) for k, v in params.items()}
+        AB = linear_model(scaled_config(config, sc), params)
+        if AB is not None:
+            arrays["A"], arrays["B"] = log_model(*AB, sc)
     return arrays
 
 
@@ -90,13 +107,29 @@ def init(root, config_path) -> Path:
     config = read_config(config_path)
     compiled = _agent(config)
     learner = compiled.agent.init()
-    arrays = _controller_arrays(config, compiled, learner)
+    arrays = _controller_arrays(config, compiled, learner, unit(config, "no data yet"))
     state = RoundState(1, learner, 0.0, (), ())
     write_bytes(root / CONFIG, text)
     write_npz(controller_path(root, 1), arrays)
-    write_bytes(root / REPORT, report.render(config, state).encode())
+    write_bytes(root / REPORT, report.render(config, state, arrays).encode())
     save_state(root, state)
     return controller_path(root, 1)
+
+
+#: Why a directory saved before rounds were scaled keeps the log's units (module scale).
+LEGACY = (
+    "this round directory was started before rounds were scaled, and its model was learned in "
+    "the log's units; start a new directory from the same files for the scaled fit"
+)
+
+
+def _scale(state: RoundState, data: RoundData, config: RoundsConfig) -> Scale:
+    """The directory's scale: recorded, set by this first round, or unit for an old one."""
+    if state.scale is not None:
+        return Scale.from_json(state.scale)
+    if state.round == 1:
+        return from_rows(data.x, data.u, config)
+    return unit(config, LEGACY)
 
 
 def update(root, path, *, accept_split: bool = False) -> Update:
@@ -107,12 +140,13 @@ def update(root, path, *, accept_split: bool = False) -> Update:
     Refused (one-line ``ValueError``, nothing written): a file already given, one whose rows
     were all learned already, one whose split of policy and ν rows is far from the plan's
     (unless ``accept_split``; :mod:`loopid.rounds.checks`). A file that shares some rows with
-    earlier ones is learned with a :class:`~loopid.rounds.checks.RoundWarning`."""
+    earlier ones is learned with a :class:`~loopid.rounds.checks.RoundWarning`.
+
+    The model is fitted and solved in the directory's scaled coordinates
+    (:mod:`loopid.rounds.scale`, set by the first update); the losses are in those units."""
     root = Path(root)
     config = load_config(root)
-    compiled = _agent(config)
-    agent = compiled.agent
-    state = load_state(root, agent.init())
+    state = load_state(root, _agent(config).agent.init())
     data = read_round(path, config)
     if data.digest in state.digests:
         given = state.digests.index(data.digest) + 1
@@ -120,32 +154,44 @@ def update(root, path, *, accept_split: bool = False) -> Update:
     past = checks.learned_rows(root, config, state)
     checks.split(path, data, config, state.round, accept_split)
     checks.overlap(path, data, past, state, config)
-    batch = transitions(data, config)
+    sc = _scale(state, data, config)
+    config_s = scaled_config(config, sc)
+    compiled = _agent(config_s)
+    agent = compiled.agent
+    before = agent.init() if state.round == 1 else state.learner
+    rows = [scaled_rows(d, sc) for d in [*past, data]]
+    batch = transitions(rows[-1], config_s)
     take = jnp.asarray(data.policy)
     pol = batch._replace(mask=batch.mask & take)
     nu = batch._replace(mask=batch.mask & ~take)
-    loss_nu, loss_pol, loss_batch = batch_losses(agent, state.learner, pol, nu, take)
-    learner = jax.jit(agent.update)(state.learner, batch)
+    loss_nu, loss_pol, loss_batch = batch_losses(agent, before, pol, nu, take)
+    learner = jax.jit(agent.update)(before, batch)
     n = state.round
     loss = jax.jit(agent.loss)
-    per_round = [float(jnp.mean(loss(learner, transitions(d, config)))) for d in [*past, data]]
-    rows = [d.x.shape[0] for d in [*past, data]]
-    loss_all = float(np.average(per_round, weights=rows))
-    scale = float(np.mean([np.sum((d.x_next - d.x) ** 2, 1).mean() for d in [*past, data]]))
+    per_round = [float(jnp.mean(loss(learner, transitions(d, config_s)))) for d in rows]
+    counts = [d.x.shape[0] for d in rows]
+    loss_all = float(np.average(per_round, weights=counts))
+    spread = float(np.mean([np.sum((d.x_next - d.x) ** 2, 1).mean() for d in rows]))
     loss_sum = state.loss_sum + float(loss_batch)
+    arrays = _controller_arrays(config, compiled, learner, sc)
+    AB = linear_model(config_s, compiled.agent.params(learner)) if agent.params else None
+    previous = read_npz(controller_path(root, n))["K"]
     row = report.row(
         config, n, data, loss_nu=float(loss_nu), loss_policy=float(loss_pol),
-        loss_all=loss_all, relative=loss_all / scale if scale > 0 else float("inf"),
-        online=loss_sum / n,
-        regret=loss_sum - float(np.sum(per_round)),
+        loss_all=loss_all, relative=loss_all / spread if spread > 0 else float("inf"),
+        online=loss_sum / n, regret=loss_sum - float(np.sum(per_round)),
+    ) | {
+        "gain_change": gain_change(arrays["K"], previous, sc),
+        "pull": pull(config_s, rows, AB, sc, config), "episodes": summary(config, data),
+    }  # fmt: skip
+    new = RoundState(
+        n + 1, learner, loss_sum, (*state.digests, data.digest), (*state.history, row),
+        (*state.files, str(path)), sc.to_json(),
     )  # fmt: skip
-    arrays = _controller_arrays(config, compiled, learner)
-    digests, files = (*state.digests, data.digest), (*state.files, str(path))
-    new = RoundState(n + 1, learner, loss_sum, digests, (*state.history, row), files)
     data_path(root, n).parent.mkdir(exist_ok=True)
     write_atomic(data.table, data_path(root, n))
     write_npz(controller_path(root, n + 1), arrays)
-    write_bytes(root / REPORT, report.render(config, new).encode())
+    write_bytes(root / REPORT, report.render(config, new, arrays).encode())
     save_state(root, new)
     return Update(n + 1, row, arrays["K"])
 
@@ -176,6 +222,15 @@ class Controller:
         return self.action_op - self.K[min(max(int(t), 0), self.K.shape[0] - 1)] @ dx
 
 
+def saved_scale(arrays: dict) -> Scale:
+    """The scale a controller's arrays were solved in (unit for one saved before scaling)."""
+    m, n_obs = len(arrays["actions"]), len(arrays["states"])
+    return Scale(
+        np.asarray(arrays.get("scale_states", np.ones(n_obs))),
+        np.asarray(arrays.get("scale_actions", np.ones(m))),
+    )
+
+
 def controller(root, n: int | None = None) -> Any:
     """Controller ``n`` (default the latest) of ``root`` as a :class:`Controller`; an MPC
     controller is the compiled agent's MPC on the saved model (``act(obs [k, n_obs], t,
@@ -185,6 +240,23 @@ def controller(root, n: int | None = None) -> Any:
         return Controller(arrays)
     from loopid.algorithms.planning_agent import restore_seeds
 
-    compiled = _agent(load_config(root))
+    sc = saved_scale(arrays)
+    compiled = _agent(scaled_config(load_config(root), sc))
     saved = {k[len("model_") :]: v[None] for k, v in arrays.items() if k.startswith("model_")}
-    return compiled.mpc(restore_seeds(compiled.model, saved))
+    mpc = compiled.mpc(restore_seeds(compiled.model, saved))
+    return mpc if sc.unit else ScaledPolicy(mpc, sc)
+
+
+class ScaledPolicy:
+    """An MPC controller planned in scaled coordinates (:mod:`loopid.rounds.scale`), acting in
+    the log's units: ``act(obs [k, n_obs], t, index) -> a [k, m]``."""
+
+    def __init__(self, mpc, sc: Scale):
+        self.mpc, self.scale = mpc, sc
+
+    def act(self, obs, t, index) -> np.ndarray:
+        a = self.mpc.act(np.asarray(obs, np.float64) / self.scale.states, t, index)
+        return np.asarray(a) * self.scale.actions
+
+    def reset(self) -> None:
+        self.mpc.reset()

@@ -15,7 +15,9 @@ system is run by a person) and ``[rounds]`` of the run's settings::
                layers, learning_rate, steps, buffer
     [planner]  kind, horizon, iterations, every, alternatives, start, cost
     [rounds]   samples (m, transitions per round, default 200), method (dagger | batch |
-               abbeel, default dagger), dagger_fraction (default 0.5)
+               abbeel, default dagger), dagger_fraction (default 0.5), scale (std | none,
+               default std: each column divided by its first round's standard deviation
+               before the fit, :mod:`loopid.rounds.scale`)
 
 The coordinates are an observed system's (:class:`~loopid.algorithms.host_agent.EnvShape`):
 ``Δx = [o − o*; 1]`` (``n = n_obs + 1``), ``Δu = a − a_op``, and a linear controller acts
@@ -50,6 +52,9 @@ class RoundsConfig(model_planner.ModelPlanner):
       samples, method, dagger_fraction: transitions per round, and how they are split between
         the policy and ν (a schedule of :mod:`loopid.algorithms.schedules`).
       planner_start, planner_cost: the ``[planner]`` table's ``start`` and ``cost``.
+      scale: ``std`` (each state and action column in units of its first round's standard
+        deviation while the model is fitted and solved, so the controller does not depend on
+        the log's units) or ``none`` (the log's units: the regulariser is absolute).
     """
 
     states: Any
@@ -69,6 +74,7 @@ class RoundsConfig(model_planner.ModelPlanner):
     dagger_fraction: float = 0.5
     planner_start: Any = None
     planner_cost: str | None = None
+    scale: str = "std"
 
     def __post_init__(self) -> None:
         for f in fields(self):
@@ -132,9 +138,12 @@ def validate(c: RoundsConfig) -> None:
     check_int("samples", c.samples)
     check_choice("method", c.method, SCHEDULES)
     check_number("dagger_fraction", c.dagger_fraction, 0.0, 1.0)
+    check_choice("scale", c.scale, SCALES)
     observed.check_model(c, c.horizon)
 
 
+#: ``[rounds] scale``: per-column standard deviation of the first round, or the log's units.
+SCALES = ("std", "none")
 SYSTEM_KEYS = ("states", "actions", "target", "action_op", "horizon", "action_limit", "A", "B")
 #: TOML table -> {key: field}; [model] and [planner] as every observed system's (A and B are
 #: in [system]).
@@ -143,7 +152,7 @@ TABLES = {
     "cost": {"Q": "Q", "R": "R"},
     "model": {k: f for k, f in observed.TABLES["model"].items() if k not in ("A", "B")},
     "planner": observed.TABLES["planner"],
-    "rounds": {"samples": "samples", "method": "method", "dagger_fraction": "dagger_fraction"},
+    "rounds": {k: k for k in ("samples", "method", "dagger_fraction", "scale")},
 }
 _REQUIRED = {"system": ("states", "actions", "target"), "cost": ("Q", "R")}
 

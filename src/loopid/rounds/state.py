@@ -4,10 +4,13 @@ Layout of ``DIR``::
 
     config.toml               the config, as given to ``loopid round init``
     state.npz                 the learner's state, the round counter, the files already given
-                              (their SHA-256 and the names they were given by) and each round's
-                              diagnostics: the commit record
+                              (their SHA-256 and the names they were given by), each round's
+                              diagnostics and the scale the model is fitted in
+                              (:mod:`loopid.rounds.scale`): the commit record
     controllers/round-NNN.npz controller N (π_N): gains K [horizon, m, n] in Δx = [o − o*; 1]
-                              (a = a_op − K_t Δx), or the model an MPC controller re-plans on
+                              (a = a_op − K_t Δx), the identified model A, B in the log's
+                              units (a linear model) or the model an MPC controller re-plans
+                              on, and the scale (scale_states, scale_actions)
     data/round-NNN.parquet    the transitions collected while controller N was deployed
     round.md                  what to collect next and what the data say
 
@@ -46,6 +49,8 @@ class RoundState(NamedTuple):
       history: one dict of diagnostics per update (:mod:`loopid.rounds.report`).
       files: the path each of those files was given by, in order (what a refusal of the same
         rows names; empty for a directory written before the paths were kept).
+      scale: the :meth:`loopid.rounds.scale.Scale.to_json` of the scale set by the first
+        update (None before it, and in a directory saved before rounds were scaled).
     """
 
     round: int
@@ -54,6 +59,7 @@ class RoundState(NamedTuple):
     digests: tuple
     history: tuple
     files: tuple = ()
+    scale: Any = None
 
 
 def controller_path(root, n: int) -> Path:
@@ -121,7 +127,7 @@ def save_state(root, state: RoundState) -> None:
     leaves = jax.tree_util.tree_leaves(state.learner)
     meta = {
         "round": state.round, "loss_sum": state.loss_sum, "digests": list(state.digests),
-        "history": list(state.history), "files": list(state.files),
+        "history": list(state.history), "files": list(state.files), "scale": state.scale,
     }  # fmt: skip
     arrays = {f"leaf_{i}": _plain(v) for i, v in enumerate(leaves)}
     write_npz(Path(root) / STATE, {**arrays, "meta": np.asarray(json.dumps(meta))})
@@ -143,5 +149,5 @@ def load_state(root, template) -> RoundState:
     )
     return RoundState(
         int(meta["round"]), learner, float(meta["loss_sum"]), tuple(meta["digests"]),
-        tuple(meta["history"]), tuple(meta.get("files", ())),
+        tuple(meta["history"]), tuple(meta.get("files", ())), meta.get("scale"),
     )  # fmt: skip
