@@ -105,7 +105,8 @@ def test_export_refuses_a_bad_round_and_format(started, capsys):
     code, err = loopid(capsys, "round", "export", root, "--round", "3")
     assert code == 2 and "--round must be 1..2" in err
     code, err = loopid(capsys, "round", "export", root, "--format", "pdf")
-    assert code == 2 and "--format must be one of json, npz, c, got 'pdf'" in err
+    formats = "json, npz, c, model, model-json, model-npz"
+    assert code == 2 and f"--format must be one of {formats}, got 'pdf'" in err
     assert snapshot(root) == before
 
 

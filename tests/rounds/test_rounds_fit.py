@@ -89,19 +89,38 @@ def test_c_header_gives_the_python_actions(tmp_path, time_varying):
     policy = rounds.controller(root)
     X = rng.normal(size=(50, 2)) * 3
     T = rng.integers(-5, 40, size=50)  # beyond the horizon: clamped
+    arrays = controller_arrays(root)
+    A, B = arrays["A"], arrays["B"]
+    dump = (  # the model's arrays, every entry, then the Python controller's and model's use
+        "  for (t = 0; t < (int)(sizeof loopid_A / sizeof(double)); ++t)\n"
+        '    printf("%.17g\\n", ((const double *)loopid_A)[t]);\n'
+        "  for (t = 0; t < (int)(sizeof loopid_B / sizeof(double)); ++t)\n"
+        '    printf("%.17g\\n", ((const double *)loopid_B)[t]);\n'
+    )
     main = tmp_path / "main.c"
     main.write_text(
         f'#include <stdio.h>\n#include "{header}"\n'
-        "int main(void) { double x[2], u[1]; int t;\n"
+        "int main(void) { double x[2], u[1], xn[2]; int t;\n" + dump +
         '  while (scanf("%lf %lf %d", &x[0], &x[1], &t) == 3) {\n'
-        '    loopid_action(x, t, u); printf("%.17g\\n", u[0]); }\n  return 0; }\n'
-    )
+        "    loopid_action(x, t, u); loopid_predict(x, u, t, xn);\n"
+        '    printf("%.17g %.17g %.17g\\n", u[0], xn[0], xn[1]); }\n  return 0; }\n'
+    )  # fmt: skip
     exe = tmp_path / "main"
-    subprocess.run([cc, "-std=c99", "-Wall", "-Werror", "-o", exe, main], check=True)
+    flags = ["-std=c99", "-Wall", "-Wextra", "-pedantic", "-Werror"]
+    subprocess.run([cc, *flags, "-o", exe, main], check=True)
     lines = "".join(f"{float(x[0])!r} {float(x[1])!r} {t}\n" for x, t in zip(X, T, strict=True))
     got = subprocess.run([exe], input=lines, capture_output=True, text=True, check=True).stdout
+    got = np.array(got.split(), float)
+    np.testing.assert_array_equal(got[: A.size], A.ravel())  # exact: the one float64 array
+    np.testing.assert_array_equal(got[A.size : A.size + B.size], B.ravel())
+    got = got[A.size + B.size :].reshape(-1, 3)
     want = np.array([policy.action(x, t)[0] for x, t in zip(X, T, strict=True)])
-    np.testing.assert_allclose(np.array(got.split(), float), want, rtol=0, atol=1e-12)
+    np.testing.assert_allclose(got[:, 0], want, rtol=0, atol=1e-12)
+    for (x, t), (u, *xn) in zip(zip(X, T, strict=True), got, strict=True):
+        At = A[min(max(t, 0), 29)] if time_varying else A
+        Bt = B[min(max(t, 0), 29)] if time_varying else B
+        dx = np.append(x - TARGET, 1.0)
+        np.testing.assert_allclose(xn, TARGET + (At @ dx + Bt @ [u - A_OP[0]])[:2], atol=1e-12)
     K = controller_arrays(root)["K"]
     assert bool(np.all(K == K[0])) is not time_varying
     assert ("loopid_K[30][1][3]" in header.read_text()) is time_varying
@@ -111,3 +130,41 @@ def test_c_header_gives_the_python_actions(tmp_path, time_varying):
     with np.load(rounds.export(root, "npz", out=tmp_path / "c.npz")) as z:
         np.testing.assert_array_equal(z["K"], K)
         assert list(z["states"]) == ["p", "v"] and z["target"].tolist() == [0.5, 0.0]
+
+
+@pytest.mark.parametrize("time_varying", [False, True])
+def test_model_export_gives_the_one_array_back_in_every_format(tmp_path, time_varying):
+    """JSON, npz (and the C header, above) hold the controller's A and B to the last bit, in
+    the log's units (the ridge oracle of the first test checks those arrays' values)."""
+    rng = np.random.default_rng(4)
+    root = tmp_path / "dir"
+    model = "time_varying = true" if time_varying else ""
+    rounds.init(root, write_config(tmp_path / "c.toml", model=model))
+    rounds.update(root, write_round(tmp_path / "r.csv", random_rows(rng, 40, t=time_varying)))
+    arrays = controller_arrays(root)
+    A, B = arrays["A"], arrays["B"]
+    assert A.dtype == B.dtype == np.float64
+    assert A.shape == ((30, 3, 3) if time_varying else (3, 3))
+    auto = rounds.export(root, "model")
+    assert auto.name == "model-002.json"
+    saved = json.loads(auto.read_text())
+    assert saved["time_varying"] is time_varying and saved["states"] == ["p", "v"]
+    np.testing.assert_array_equal(np.array(saved["A"]), A)
+    np.testing.assert_array_equal(np.array(saved["B"]), B)
+    with np.load(rounds.export(root, "model-npz")) as z:
+        np.testing.assert_array_equal(z["A"], A)
+        np.testing.assert_array_equal(z["B"], B)
+        assert z["A"].dtype == np.float64 and int(z["round"]) == 2
+    assert rounds.export(root, "model-json", out=tmp_path / "m.json").read_text() == (
+        auto.read_text()
+    )
+
+
+def test_model_export_refuses_a_nonlinear_model(tmp_path):
+    model = 'kind = "features"\ndegree = 2\n[planner]\nkind = "ilqr"'
+    root = tmp_path / "dir"
+    rounds.init(root, write_config(tmp_path / "c.toml", model=model))
+    with pytest.raises(ValueError, match="controller 1's model is not linear") as err:
+        rounds.export(root, "model")
+    assert "\n" not in str(err.value) and not list(root.glob("model-*"))
+    assert "loopid_predict" not in rounds.export(root, "c").read_text()

@@ -4,6 +4,15 @@ Bad input (a config or a file that does not fit, a file or rows already given, a
 from the plan) is a ``ValueError`` of one line: the ``loopid`` command prints it and exits with
 code 2, and the round directory is left as it was. A warning about a file that was learned
 from (:class:`~loopid.rounds.checks.RoundWarning`) is one line on stderr, ``loopid: warning:``.
+
+What each command prints (a script reads stdout; stderr is for the person):
+
+- ``init``: nothing on stdout; ``wrote DIR/controllers/round-001.npz and DIR/round.md`` on stderr.
+- ``update``: one line on stdout, ``controller N: loss before the update … on nu rows, … on
+  policy rows; … on all data after it``; ``wrote DIR/round.md`` on stderr.
+- ``export``: the path written, alone on one line of stdout; nothing on stderr.
+- a warning: ``loopid: warning: …``, one line on stderr (the update is learned).
+- an error: ``loopid: error: …``, one line on stderr, exit code 2.
 """
 
 import warnings
@@ -77,11 +86,20 @@ def update(
 def export(
     root: Path = typer.Argument(..., metavar="DIR", help="The round directory."),
     n: int = typer.Option(None, "--round", help="Which controller (default: the latest)."),
-    fmt: str = typer.Option("c", "--format", help="json, npz or c (a C99 header)."),
-    out: Path = typer.Option(None, "--out", help="Output file (default: DIR/controller-NNN.*)."),
+    fmt: str = typer.Option(
+        "c",
+        "--format",
+        help="json, npz or c (a C99 header) for the controller; model (JSON for a small "
+        "system, else npz), model-json or model-npz for its identified A and B.",
+    ),
+    out: Path = typer.Option(
+        None, "--out", help="Output file (default: DIR/controller-NNN.* or DIR/model-NNN.*)."
+    ),
 ) -> None:
     """Write a controller, ready to deploy: its gains, operating point and, as C, a function
-    loopid_action(x, t, u). A controller that plans online (MPC) is not written as C."""
+    loopid_action(x, t, u) (with the model's loopid_A, loopid_B and loopid_predict), or its
+    identified model A, B in the log's units. A controller that plans online (MPC) is not
+    written as C. Prints the path written on stdout."""
     from loopid import rounds
 
     typer.echo(str(rounds.export(root, fmt, n, out)))

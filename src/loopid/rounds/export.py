@@ -1,4 +1,4 @@
-"""A round's controller, ready to deploy: ``json``, ``npz`` or a C header.
+"""A round's controller, ready to deploy: ``json``, ``npz`` or a C header; and its model.
 
 A linear controller acts ``a = a_op − K_t [o − o*; 1]`` with ``K_t [m, n_obs + 1]`` (the last
 column is the feedforward term), ``t`` the step within the episode clamped to ``0..T−1``. When
@@ -12,6 +12,26 @@ arrays: ``loopid_target``, ``loopid_action_op``, ``loopid_K`` and
 same actions as the Python controller to rounding. A controller that re-plans online (MPC on
 the learned model) has no gains: it is exported as json or npz (the model's parameters), never
 as C.
+
+The identified model (the linear model controller N was solved on) is written in the log's
+units, in the form of the config's ``[system] A`` and ``B``: ``Δx' = A Δx + B Δu`` with
+``Δx = [o − o*; 1]``, ``Δu = a − a_op``, ``A [n, n]``, ``B [n, m]`` (``n = n_obs + 1``; the
+last row of ``A`` is ``[0 … 0 1]``), or ``[T, ·, ·]`` for a time-varying model:
+
+- ``--format model-json``: ``{"round", "form", "states", "actions", "target", "action_op",
+  "time_varying", "A", "B"}`` (nested lists; numbers in their shortest round-trip form);
+- ``--format model-npz``: the named arrays ``A``, ``B``, ``target``, ``action_op``, ``states``,
+  ``actions``, ``round``;
+- ``--format model``: JSON for a small system (at most :data:`SMALL_MODEL` coefficients in ``A``
+  and ``B`` together), ``.npz`` otherwise;
+- the C header (``--format c``) carries them too: ``loopid_A``, ``loopid_B`` and
+  ``static inline void loopid_predict(const double *x, const double *u, int t, double *x_next)``,
+  the model's next state ``o'`` from ``o`` and ``a``.
+
+Every format is written from the same float64 arrays (the controller's saved ``A`` and ``B``), and
+each gives them back to the last bit. A model class other than the linear one has no ``A`` and
+``B``: its parameters are in the controller's ``.npz`` (``model_*``, in the scaled coordinates of
+:mod:`loopid.rounds.scale`), and ``--format model`` is refused with one line saying so.
 """
 
 import json
@@ -23,8 +43,10 @@ import numpy as np
 from loopid.rounds.api import controller_arrays
 from loopid.rounds.state import write_bytes, write_npz
 
-FORMATS = ("json", "npz", "c")
-_SUFFIX = {"json": ".json", "npz": ".npz", "c": ".h"}
+FORMATS = ("json", "npz", "c", "model", "model-json", "model-npz")
+_SUFFIX = {"json": ".json", "npz": ".npz", "c": ".h", "model-json": ".json", "model-npz": ".npz"}
+#: ``--format model`` writes JSON up to this many coefficients in A and B together, else .npz.
+SMALL_MODEL = 1000
 
 
 def gains(arrays: dict) -> np.ndarray:
@@ -83,8 +105,68 @@ static inline void loopid_action(const double *x, int t, double *u)
     }}
 }}
 
-#endif /* LOOPID_CONTROLLER_H */
+{_c_model(arrays, n)}#endif /* LOOPID_CONTROLLER_H */
 """
+
+
+def _c_model(arrays: dict, n: int) -> str:
+    """The model's arrays and ``loopid_predict`` for the C header (module docstring)."""
+    if "A" not in arrays:
+        return ""
+    A, B = np.asarray(arrays["A"], np.float64), np.asarray(arrays["B"], np.float64)
+    n_obs, m = A.shape[-1] - 1, B.shape[-1]
+    tv = A.ndim == 3
+    steps = f"[{A.shape[0]}]" if tv else ""
+    pick = "[t]" if tv else ""
+    clamp = (
+        f"    if (t < 0) t = 0;\n    if (t > {A.shape[0] - 1}) t = {A.shape[0] - 1};\n"
+        if tv
+        else "    (void)t; /* time-invariant model */\n"
+    )
+    return f"""/* The model controller {n} was solved on, in the log's units:
+ * dx' = A dx + B du, dx = [x - target; 1], du = u - a_op (the last row of A is [0 ... 0 1]). */
+#define LOOPID_MODEL_STEPS {A.shape[0] if tv else 1}
+static const double loopid_A{steps}[{n_obs + 1}][{n_obs + 1}] = {_c_array(A)};
+static const double loopid_B{steps}[{n_obs + 1}][{m}] = {_c_array(B)};
+
+/* The model's next state x_next [n] from x [n] and u [m] at step t. */
+static inline void loopid_predict(const double *x, const double *u, int t, double *x_next)
+{{
+    int i, j;
+{clamp}    for (i = 0; i < {n_obs}; ++i) {{
+        double s = loopid_A{pick}[i][{n_obs}];
+        for (j = 0; j < {n_obs}; ++j) s += loopid_A{pick}[i][j] * (x[j] - loopid_target[j]);
+        for (j = 0; j < {m}; ++j) s += loopid_B{pick}[i][j] * (u[j] - loopid_action_op[j]);
+        x_next[i] = loopid_target[i] + s;
+    }}
+}}
+
+"""
+
+
+def model_arrays(arrays: dict, n: int) -> dict:
+    """Controller ``n``'s identified model, for ``--format model`` (module docstring);
+    ValueError when it has no linear model."""
+    if "A" not in arrays:
+        raise ValueError(
+            f"controller {n}'s model is not linear (no A and B): its parameters are the "
+            f"model_* arrays of controllers/round-{n:03d}.npz; --format npz writes them"
+        )
+    keys = ("A", "B", "target", "action_op", "states", "actions")
+    return {k: arrays[k] for k in keys} | {"round": np.asarray(n)}
+
+
+def _model_json(model: dict) -> str:
+    out = {
+        "round": int(model["round"]),
+        "form": "dx' = A dx + B du, dx = [o - target; 1], du = a - action_op",
+        "states": [str(s) for s in model["states"]],
+        "actions": [str(s) for s in model["actions"]],
+        "target": model["target"].tolist(), "action_op": model["action_op"].tolist(),
+        "time_varying": model["A"].ndim == 3,
+        "A": model["A"].tolist(), "B": model["B"].tolist(),
+    }  # fmt: skip
+    return json.dumps(out, indent=1)
 
 
 def _json(arrays: dict, n: int) -> str:
@@ -104,10 +186,22 @@ def _json(arrays: dict, n: int) -> str:
     return json.dumps(out, indent=1)
 
 
+def _export_model(root, fmt: str, model: dict, n: int, out) -> Path:
+    if fmt == "model":
+        fmt = "model-json" if model["A"].size + model["B"].size <= SMALL_MODEL else "model-npz"
+    path = Path(out) if out is not None else Path(root) / f"model-{n:03d}{_SUFFIX[fmt]}"
+    if fmt == "model-npz":
+        write_npz(path, model)
+    else:
+        write_bytes(path, _model_json(model).encode())
+    return path
+
+
 def export(root, fmt: str, n: int | None = None, out=None) -> Path:
     """Write controller ``n`` (default the latest) of the round directory ``root`` as ``fmt``
     (``json``, ``npz`` or ``c``) to ``out`` (default ``root/controller-NNN`` + the format's
-    suffix); returns the path written."""
+    suffix), or its identified model (``model``, ``model-json``, ``model-npz``; default
+    ``root/model-NNN`` + the suffix); returns the path written."""
     if fmt not in FORMATS:
         raise ValueError(f"--format must be one of {', '.join(FORMATS)}, got {fmt!r}")
     arrays = controller_arrays(root, n)
@@ -117,6 +211,8 @@ def export(root, fmt: str, n: int | None = None, out=None) -> Path:
             f"controller {n} plans online (MPC on the learned model): it has no gains to write "
             "as C; export it as json or npz"
         )
+    if fmt.startswith("model"):
+        return _export_model(root, fmt, model_arrays(arrays, n), n, out)
     path = Path(out) if out is not None else Path(root) / f"controller-{n:03d}{_SUFFIX[fmt]}"
     if fmt == "npz":
         write_npz(path, arrays)
