@@ -100,6 +100,8 @@ def test_episodes_to_the_horizon_or_marked_terminated(tmp_path):
     ep = summary(config, data(None))
     assert ep["lengths"] == [30, 4] and ep["ended_early"] == 1 and ep["costs"] == [0.0, 0.0]
     assert sentence(ep, 2, 30) == "Controller 2 ended 1 of its 2 episodes early (a fall)."
-    ep = summary(config, data(np.array([False, True, False, False])))
+    ep = summary(config, data(np.array([False, True, False, False])))  # a fell; b was cut
+    assert ep["ended_early"] == 1 and ep["lengths"] == [30, 4]
+    ep = summary(config, data(np.array([True, False, True, False])))
     assert ep["ended_early"] == 2 and sentence(ep, 2, 30).startswith("**Controller 2 ended every")
     assert summary(config, data(None)._replace(episode=None)) is None

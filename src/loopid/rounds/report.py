@@ -223,6 +223,9 @@ def render(config: RoundsConfig, state, arrays: dict) -> str:
         f"{', '.join('next_' + s for s in config.states)} and `source`:", "",
         f"- {pol} from running controller {n} from the start distribution (`source = policy`);",
         f"- {nu} from the exploration distribution ν (`source = nu`).", "",
+        "Optional columns: `t` (the step within its episode, required for a time-varying "
+        "model), `episode` (which episode a row belongs to: per-episode costs and lengths) and "
+        "`terminated` (true on the row where an episode ended early, a fall).", "",
         "Then run `loopid round update DIR FILE`.", "",
     ]  # fmt: skip
     if pol:
