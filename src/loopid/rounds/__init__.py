@@ -7,7 +7,8 @@ says what to collect next. The command line is ``loopid round init|update|export
 
 - :func:`init`: start a round directory from a config (:mod:`loopid.rounds.config`).
 - :func:`update`: one iteration on a Parquet or CSV file (:mod:`loopid.rounds.data`).
-- :func:`export`: a controller as ``json``, ``npz`` or ``c`` (:mod:`loopid.rounds.export`).
+- :func:`export`: a controller as ``json``, ``npz`` or ``c``, or its identified model as
+  ``model`` (:mod:`loopid.rounds.export`).
 - :func:`controller`: a controller as a Python object.
 """
 

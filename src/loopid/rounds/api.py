@@ -5,13 +5,18 @@ drone, a plant): each iteration n of the loop is one call, and a person runs the
 between. ``init`` solves the initial model for π_1. Each ``update`` is iteration n + 1: the
 transitions logged while π_n was deployed (the policy's rows and ν's, in the proportion
 ``round.md`` asked for) are one batch for the online learner (FTRL by default: after the k-th
-update the model is the ridge fit on every row so far, regulariser λ/√(rows)), the new model is
-solved (LQR for the linear model; iLQR or MPC for the others) and π_{n+1} is written out.
+update the model is the ridge fit on every row so far, regulariser λ/√(rows) on the mean loss,
+i.e. λ√(rows) on the summed loss), the new model is solved (LQR for the linear model; iLQR or
+MPC for the others) and π_{n+1} is written out. The fit and the solve run in the directory's
+scaled coordinates (:mod:`loopid.rounds.scale`: each column in units of its first round's
+standard deviation, so the controller does not depend on the log's units); the controller and
+the identified model are saved in the log's units.
 
 The agent is an observed system's (:func:`loopid.algorithms.host_agent.compiled_agent`, the
 same model class × learner × planner as a Gymnasium scenario's), and the losses are the loop's
-(:func:`loopid.algorithms.loop_program.batch_losses`): a round fed the transitions a
-``loopid run gym`` iteration learned from gives that iteration's model and gains.
+(:func:`loopid.algorithms.loop_program.batch_losses`): under ``[rounds] scale = "none"`` a round
+fed the transitions a ``loopid run gym`` iteration learned from gives that iteration's model and
+gains.
 """
 
 from pathlib import Path
