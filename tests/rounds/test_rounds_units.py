@@ -144,3 +144,24 @@ def test_an_old_directory_keeps_unit_scale(tmp_path):
     rounds.update(root, write_round(tmp_path / "r2.parquet", cols))
     assert controller_arrays(root)["scale_states"].tolist() == [1.0, 1.0]
     assert "started before rounds were scaled" in (root / "round.md").read_text()
+
+
+def test_an_mpc_controller_acts_in_the_log_units(tmp_path):
+    """Features + MPC: planned in the scaled coordinates, the same actions in either unit."""
+    extra = '[model]\nkind = "features"\n[planner]\nkind = "mpc"\nhorizon = 5\niterations = 3'
+    got = []
+    for unit in (1.0, DEG):
+        cfg = tmp_path / f"{unit}.toml"
+        text = CONFIG.format(target=0.01 * unit, q=1.0 / unit**2, rounds="")
+        cfg.write_text(text.replace("[rounds]", extra + "\n[rounds]"))
+        root = tmp_path / f"mpc-{unit}"
+        rounds.init(root, cfg)
+        r = physical_rounds(1)[0]
+        x, xn = r["x"] * [unit, 1.0], r["xn"] * [unit, 1.0]
+        cols = {"tilt": x[:, 0], "rate": x[:, 1], "torque": r["u"][:, 0]}
+        cols |= {"next_tilt": xn[:, 0], "next_rate": xn[:, 1], "source": ["nu"] * 40}
+        rounds.update(root, write_round(tmp_path / f"m{unit}.parquet", cols))
+        obs = np.array([[0.03, 0.01], [-0.02, 0.04]]) * [unit, 1.0]
+        got.append(np.asarray(rounds.controller(root).act(obs, [0, 0], [0, 1])))
+    assert got[0].shape == (2, 1) and np.abs(got[0]).max() > 1e-4
+    assert np.abs(got[1] - got[0]).max() <= 1e-9 * np.abs(got[0]).max()
