@@ -164,7 +164,7 @@ def test_model_export_refuses_a_nonlinear_model(tmp_path):
     model = 'kind = "features"\ndegree = 2\n[planner]\nkind = "ilqr"'
     root = tmp_path / "dir"
     rounds.init(root, write_config(tmp_path / "c.toml", model=model))
-    with pytest.raises(ValueError, match="controller 1's model is not linear") as err:
+    with pytest.raises(ValueError, match="controller 1 has no A and B") as err:
         rounds.export(root, "model")
     assert "\n" not in str(err.value) and not list(root.glob("model-*"))
     assert "loopid_predict" not in rounds.export(root, "c").read_text()

@@ -165,3 +165,11 @@ def test_an_mpc_controller_acts_in_the_log_units(tmp_path):
         got.append(np.asarray(rounds.controller(root).act(obs, [0, 0], [0, 1])))
     assert got[0].shape == (2, 1) and np.abs(got[0]).max() > 1e-4
     assert np.abs(got[1] - got[0]).max() <= 1e-9 * np.abs(got[0]).max()
+
+
+def test_a_bad_scale_is_refused(tmp_path):
+    cfg = tmp_path / "c.toml"
+    cfg.write_text(CONFIG.format(target=0.0, q=1.0, rounds='scale = "rms"'))
+    with pytest.raises(ValueError, match="scale must be one of std, none, got 'rms'") as err:
+        rounds.init(tmp_path / "dir", cfg)
+    assert "\n" not in str(err.value) and not (tmp_path / "dir").exists()

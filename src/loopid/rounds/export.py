@@ -149,8 +149,9 @@ def model_arrays(arrays: dict, n: int) -> dict:
     ValueError when it has no linear model."""
     if "A" not in arrays:
         raise ValueError(
-            f"controller {n}'s model is not linear (no A and B): its parameters are the "
-            f"model_* arrays of controllers/round-{n:03d}.npz; --format npz writes them"
+            f"controller {n} has no A and B (its model is not linear, or it was saved before "
+            f"models were exported): its parameters are the model_* arrays of "
+            f"controllers/round-{n:03d}.npz; --format npz writes them"
         )
     keys = ("A", "B", "target", "action_op", "states", "actions")
     return {k: arrays[k] for k in keys} | {"round": np.asarray(n)}
