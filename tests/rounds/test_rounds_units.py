@@ -101,7 +101,7 @@ def test_a_column_without_spread_keeps_unit_scale(tmp_path):
     r = physical_rounds(1)[0]
     cols = {"tilt": r["x"][:, 0], "rate": r["x"][:, 1], "torque": np.zeros(40)}
     cols |= {"next_tilt": r["xn"][:, 0], "next_rate": r["xn"][:, 1]}
-    cols["source"] = ["nu"] * 40
+    cols["source"] = ["policy" if j % 2 else "nu" for j in range(40)]
     rounds.update(root, write_round(tmp_path / "r.csv", cols))
     meta = json.loads(str(read_npz(root / "state.npz")["meta"]))
     assert meta["scale"]["actions"] == [1.0] and meta["scale"]["flat"] == ["torque"]
@@ -140,7 +140,11 @@ def test_an_old_directory_keeps_unit_scale(tmp_path):
     )
     r = physical_rounds(2)[1]
     cols = {"tilt": r["x"][:, 0], "rate": r["x"][:, 1], "torque": r["u"][:, 0]}
-    cols |= {"next_tilt": r["xn"][:, 0], "next_rate": r["xn"][:, 1], "source": ["nu"] * 40}
+    cols |= {
+        "next_tilt": r["xn"][:, 0],
+        "next_rate": r["xn"][:, 1],
+        "source": ["policy" if j % 2 else "nu" for j in range(40)],
+    }
     rounds.update(root, write_round(tmp_path / "r2.parquet", cols))
     assert controller_arrays(root)["scale_states"].tolist() == [1.0, 1.0]
     assert "started before rounds were scaled" in (root / "round.md").read_text()
@@ -159,7 +163,11 @@ def test_an_mpc_controller_acts_in_the_log_units(tmp_path):
         r = physical_rounds(1)[0]
         x, xn = r["x"] * [unit, 1.0], r["xn"] * [unit, 1.0]
         cols = {"tilt": x[:, 0], "rate": x[:, 1], "torque": r["u"][:, 0]}
-        cols |= {"next_tilt": xn[:, 0], "next_rate": xn[:, 1], "source": ["nu"] * 40}
+        cols |= {
+            "next_tilt": xn[:, 0],
+            "next_rate": xn[:, 1],
+            "source": ["policy" if j % 2 else "nu" for j in range(40)],
+        }
         rounds.update(root, write_round(tmp_path / f"m{unit}.parquet", cols))
         obs = np.array([[0.03, 0.01], [-0.02, 0.04]]) * [unit, 1.0]
         got.append(np.asarray(rounds.controller(root).act(obs, [0, 0], [0, 1])))
