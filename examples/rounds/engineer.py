@@ -62,8 +62,9 @@ def episode_cost(X, U) -> float:
     return float(np.einsum("ti,ij,tj->", E, Q, E) + np.einsum("ti,ij,tj->", U, R, U))
 
 
-def collect(rig: Rig, act, rows: int, horizon: int, source: str, rng) -> dict:
-    """``rows`` transitions drawn uniformly among the steps of enough episodes of ``act``."""
+def collect(rig: Rig, act, rows: int, horizon: int, source: str, rng, tag: str = "") -> dict:
+    """``rows`` transitions drawn uniformly among the steps of enough episodes of ``act``,
+    with the optional ``episode`` (labelled ``SOURCE-TAG-K``), ``t`` and ``terminated`` columns."""
     episodes = [rig.run(act, horizon) for _ in range(max(1, -(-2 * rows // horizon)))]
     X = np.concatenate([e[0][:-1] for e in episodes])
     Xn = np.concatenate([e[0][1:] for e in episodes])
@@ -72,7 +73,11 @@ def collect(rig: Rig, act, rows: int, horizon: int, source: str, rng) -> dict:
     cols = {s: X[pick, i] for i, s in enumerate(STATES)}
     cols |= {a: U[pick, i] for i, a in enumerate(ACTIONS)}
     cols |= {f"next_{s}": Xn[pick, i] for i, s in enumerate(STATES)}
-    return cols | {"source": [source] * rows}
+    # which episode and step each row comes from; the cart never ends an episode early, which
+    # `terminated` says (rows drawn among the steps may miss an episode's last step)
+    episode, t = np.divmod(pick, horizon)
+    cols |= {"episode": [f"{source}-{tag}-{e}" for e in episode], "t": t}
+    return cols | {"terminated": np.zeros(rows, bool), "source": [source] * rows}
 
 
 def nu(rng):
@@ -103,8 +108,12 @@ def main(argv=None) -> list[float]:
         if n > args.rounds:
             break
         pol, from_nu = split(config, n)
-        parts = [collect(rig, policy.action, pol, config.horizon, "policy", rng)] if pol else []
-        parts += [collect(rig, nu(rng), from_nu, config.horizon, "nu", rng)] if from_nu else []
+        parts = (
+            [collect(rig, policy.action, pol, config.horizon, "policy", rng, f"{n}")] if pol else []
+        )
+        parts += (
+            [collect(rig, nu(rng), from_nu, config.horizon, "nu", rng, f"{n}")] if from_nu else []
+        )
         table = pa.concat_tables([pa.table(p) for p in parts])
         path = root.parent / f"round-{n}.parquet"
         pq.write_table(table, path)

@@ -57,4 +57,5 @@ def sentence(ep: dict, n: int, horizon: int) -> str:
         )
     if early:
         return f"Controller {n} ended {early} of its {k} episodes early (a fall)."
-    return f"Controller {n} ran all {k} of its episodes to the horizon of {horizon} steps."
+    every = "its one episode" if k == 1 else f"all {k} of its episodes"
+    return f"Controller {n} ran {every} to the horizon of {horizon} steps."
