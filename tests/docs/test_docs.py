@@ -3,15 +3,14 @@ and the README's run, the README stays short, and no user-facing text points at 
 
 The strict build (``sphinx-build -n -W --keep-going -E``, as ``make docs``) fails on a broken
 cross-reference, a missing image or a page left out of the navigation. It runs in a subprocess
-started when this module starts, so it overlaps the code blocks, which run in this process.
+(``conftest.py``, shared with ``test_html.py``) started when this module starts, so it overlaps
+the code blocks, which run in this process.
 """
 
 import ast
 import importlib
 import pkgutil
 import re
-import subprocess
-import sys
 from pathlib import Path
 
 import pytest
@@ -55,36 +54,15 @@ PENDING: set[str] = set()
 INTERNAL = re.compile(r"\bSPEC\b|\b[Ii]ssue\s+#?\d+")
 
 
-@pytest.fixture(scope="module")
-def build(tmp_path_factory):
-    """The strict build, started at once in a subprocess; yields a function that waits for it
-    and returns ``(returncode, warnings, html directory)``."""
-    out = tmp_path_factory.mktemp("docs")
-    html = out / "html"
-    cmd = [sys.executable, "-m", "sphinx", "-n", "-W", "--keep-going", "-E", "-q", "-j", "1"]
-    process = subprocess.Popen(
-        [*cmd, "-b", "html", "-d", str(out / "doctrees"), str(DOCS), str(html)],
-        stdout=subprocess.PIPE,
-        stderr=subprocess.PIPE,
-        text=True,
-    )
-    result = []
-
-    def wait():
-        if not result:
-            _, stderr = process.communicate(timeout=300)
-            result.append((process.returncode, stderr, html))
-        return result[0]
-
-    yield wait
-    if process.poll() is None:
-        process.kill()
-        process.wait()
-
-
 @pytest.fixture(scope="module", autouse=True)
-def start_build(build):
-    """Start the build before the first test of this module."""
+def start_build(docs_build):
+    """Start the build (``conftest.py``) before the first test of this module, so that it runs
+    while the code blocks do."""
+
+
+@pytest.fixture(scope="module")
+def build(docs_build):
+    return docs_build
 
 
 def markdown_files() -> list[Path]:
