@@ -3,7 +3,7 @@
 (method, seed) pair a lane of one compiled program), :func:`run_fixed_policy` (the expert),
 each a :class:`~loopid.algorithms.contracts.Trace` with one row per seed and iteration;
 :func:`program_memory`, what their programs need; and the padding of small seed batches
-(:data:`MIN_SEEDS`).
+(:data:`~loopid.algorithms.loop.MIN_SEEDS`).
 
 Speed: :func:`drive` calls the program's ``step`` N − 1 times from Python (no retracing: the
 iteration number and ``p_n`` are traced arguments), which gives progress and early results per

@@ -25,8 +25,8 @@ One iteration (Li & Todorov 2004; Tassa, Erez & Todorov 2012):
 Stopping rules (``lax.while_loop``, at most ``max_iter`` iterations):
 
 * converged when, with μ = 0, the predicted decrease of the full step, 2Σh_uᵀk - Σkᵀ H_uu k, is
-  at most ``tol``·|J| + ``atol`` (with a positive definite H_uu), or when an accepted step
-  lowers J by at most ``tol``·|J| + ``atol``;
+  at most ``tol``·``|J|`` + ``atol`` (with a positive definite H_uu), or when an accepted step
+  lowers J by at most ``tol``·``|J|`` + ``atol``;
 * not converged when μ exceeds ``mu_max`` (no descent found) or after ``max_iter`` iterations.
 
 The cost never increases between iterations (only decreasing steps are accepted). After the loop

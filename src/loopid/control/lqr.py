@@ -72,7 +72,7 @@ class LQRSolution(NamedTuple):
         converged: ``[...]`` bool, see the module docstring.
         residual: ``[...]`` relative Riccati residual ‖AᵀPA - P - (AᵀPB + N)K + Q‖_F /
             (‖AᵀPA‖_F + ‖P‖_F + ‖Q‖_F).
-        spectral_radius: ``[...]`` largest |eigenvalue| of A - BK.
+        spectral_radius: ``[...]`` largest ``|eigenvalue|`` of A - BK.
         iterations: ``[...]`` int, doubling steps taken.
     """
 

@@ -1,4 +1,4 @@
-r"""The spectral radius ρ(M) = maxᵢ |λᵢ(M)| of a batch of square matrices ``M [..., n, n]``.
+r"""The spectral radius ρ(M) = maxᵢ ``|λᵢ(M)|`` of a batch of square matrices ``M [..., n, n]``.
 
 The LQR solvers report the closed loop's ρ(A − BK) and call it stable when ρ < 1. Two ways to
 compute it, picked by the backend the program is traced for:
@@ -10,13 +10,13 @@ compute it, picked by the backend the program is traced for:
   a 21 × 21 matrix on one H200): ρ of 1,000 hover lanes took about 1.4 s of every iteration.
   A TPU has no ``eig`` at all.
 
-Gelfand's formula, normalised so nothing overflows (‖·‖ the largest |entry|)::
+Gelfand's formula, normalised so nothing overflows (‖·‖ the largest ``|entry|``)::
 
     P₀ = M / ‖M‖,   P_{j+1} = P_j² / ‖P_j²‖,
     ρ̂ = ‖M‖ · exp(Σ_{j<k} 2^{−(j+1)} log ‖P_j²‖) = ‖M^N‖^{1/N},   N = 2^k.
 
 Accuracy. With M = V J V⁻¹ (J its Jordan form, largest block d), ‖M^N‖ / ρ^N lies between
-1/(n κ(V)) and n κ(V) N^{d−1}, so the truncation error |log ρ̂ − log ρ| is at most
+1/(n κ(V)) and n κ(V) N^{d−1}, so the truncation error ``|log ρ̂ − log ρ|`` is at most
 log(n κ(V) N^{d−1}) / N: with k = 60 squarings (N ≈ 1.2e18) at most about 1e-15 for any
 κ(V) < 1e300 and d ≤ 20. Rounding is what limits it: each squaring's rounding error (about n·ε
 relative to ‖P_j‖) moves P_j's dominant eigenvalue, which can be as small as ‖P_j‖ / κ(V), by
@@ -73,7 +73,7 @@ def _by_eigenvalues(M: Array) -> Array:
 
 
 def spectral_radius(M, method: str | None = None) -> Array:
-    """ρ(M) = maxᵢ |λᵢ(M)| of ``M [..., n, n]`` (float): ``[...]``. Works under jit and vmap.
+    """ρ(M) = maxᵢ ``|λᵢ(M)|`` of ``M [..., n, n]`` (float): ``[...]``. Works under jit and vmap.
 
     ``method``: ``"eigenvalues"`` (LAPACK's ``geev``), ``"squaring"`` (Gelfand's formula,
     batched matrix products), or None: the eigenvalues on a CPU, squaring on an accelerator

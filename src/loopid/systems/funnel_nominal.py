@@ -32,7 +32,7 @@ T = len(target) − 1 (599 with pads, 399 without):
   The spec drops (A − I)c_t, i.e. it applies the hover model to the offset from the target as if
   the target were the hover trim: e.g. Δx's u_prev entries hold the whole trim (the funnel
   target has u_prev = 0), which the spec reads as 0.4 of extra collective. The attitude part is
-  first order only: c_t's attitude entry is the target's whole yaw (|e| up to 1 at ψ = π), far
+  first order only: c_t's attitude entry is the target's whole yaw (``|e|`` up to 1 at ψ = π), far
   outside where the hover linearisation holds, which is what "heading" repairs.
 - ``"heading"``: the same construction about the hover trim turned to the target's yaw ψ_t, so
   that the velocity-attitude coupling (Δx's attitude entries live in the target's body frame,
@@ -42,7 +42,7 @@ T = len(target) − 1 (599 with pads, 399 without):
       A_t, B_t = linearize(h_t, h_t),
       Δx_{t+1} = A_tΔx_t + B_tΔu_t − inc_t + (A_t − I)c_t,   c_t = x*_t ⊖ h_t.
 
-  q_yaw(ψ_t) = [0, 0, q*_z, q*_w] / |·| (the yaw part of q*_t; exactly q*_t on the level funnel
+  q_yaw(ψ_t) = ``[0, 0, q*_z, q*_w] / |·|`` (the yaw part of q*_t; exactly q*_t on the level funnel
   target, and continuous in sign like the target, so c_t's attitude entry stays the small
   conj(q_hover) part, −sin(φ_hover/2) about x, at every turn). h_t is an exact trim (a yaw turns
   the balanced force about the vertical), so linearize's own drift column is ≈ 0. The position
@@ -97,7 +97,7 @@ def _offsets(x_ref: jax.Array, target: jax.Array) -> jax.Array:
 def heading_states(target: jax.Array) -> jax.Array:
     """h_t [T, 21]: the hover trim turned to the yaw of x*_t, at x*_t's position (module docstring).
 
-    ``target`` [T, 21]; q(h_t) = q_yaw(ψ_t) ⊗ q_hover with q_yaw = [0, 0, q*_z, q*_w] / |·|.
+    ``target`` [T, 21]; q(h_t) = q_yaw(ψ_t) ⊗ q_hover with q_yaw = ``[0, 0, q*_z, q*_w] / |·|``.
     """
     hover = helicopter.hover_target()
     qz, qw = target[:, 19], target[:, 20]

@@ -80,7 +80,7 @@ def _column(v, like: jax.Array) -> jax.Array:
 
 
 def quat_mul(p: jax.Array, q: jax.Array) -> jax.Array:
-    """Hamilton product p ⊗ q of quaternions stored scalar last ``[x, y, z, w]``; [4, *B]."""
+    """Hamilton product p ⊗ q of quaternions stored scalar last ``[x, y, z, w]``; ``[4, *B]``."""
     px, py, pz, pw = p[0], p[1], p[2], p[3]
     qx, qy, qz, qw = q[0], q[1], q[2], q[3]
     return jnp.stack(
@@ -94,16 +94,17 @@ def quat_mul(p: jax.Array, q: jax.Array) -> jax.Array:
 
 
 def quat_conj(q: jax.Array) -> jax.Array:
-    """Conjugate ``[−x, −y, −z, w]`` (the inverse of a unit quaternion); [4, *B]."""
+    """Conjugate ``[−x, −y, −z, w]`` (the inverse of a unit quaternion); ``[4, *B]``."""
     return jnp.concatenate([-q[:3], q[3:]])
 
 
 def rotvec_to_quat(r: jax.Array) -> jax.Array:
-    """Unit quaternion [4, *B] of the rotation vector r [3, *B] (rad), for
+    """Unit quaternion ``[4, *B]`` of the rotation vector r ``[3, *B]`` (rad), for
     the attitude update of :func:`step`.
 
-    Vector part sin(|r|/2)·r/|r| (r/2 when |r| < 1e-4), scalar part sqrt(1 − |vec|²). The
-    small-angle branch uses a safe norm inside ``jnp.where``, so gradients are finite at r = 0.
+    Vector part sin(``|r|``/2)·r/``|r|`` (r/2 when ``|r|`` < 1e-4), scalar part
+    sqrt(1 − ``|vec|²``). The small-angle branch uses a safe norm inside ``jnp.where``, so
+    gradients are finite at r = 0.
     """
     n2 = r[0] * r[0] + r[1] * r[1] + r[2] * r[2]
     small = n2 < 1e-8  # |r| < 1e-4
@@ -114,7 +115,8 @@ def rotvec_to_quat(r: jax.Array) -> jax.Array:
 
 
 def quat_to_rotmat(q: jax.Array) -> jax.Array:
-    """Rotation matrix [3, 3, *B] of the unit quaternion q [4, *B] (scalar last), body to world."""
+    """Rotation matrix ``[3, 3, *B]`` of the unit quaternion q ``[4, *B]`` (scalar last), body to
+    world."""
     x, y, z, w = q[0], q[1], q[2], q[3]
     return jnp.stack(
         [
@@ -127,8 +129,9 @@ def quat_to_rotmat(q: jax.Array) -> jax.Array:
 
 # ----------------------------------------------------------------------------- dynamics
 def step(x: jax.Array, du: jax.Array, noise: jax.Array) -> jax.Array:
-    """One explicit Euler step (written out in the module docstring): x [21, *B], du [4, *B],
-    noise [6, *B] -> x_next [21, *B] (trailing batch axes optional; see "quaternions" above).
+    """One explicit Euler step (written out in the module docstring): x ``[21, *B]``,
+    du ``[4, *B]``, noise ``[6, *B]`` -> x_next ``[21, *B]`` (trailing batch axes optional; see
+    "quaternions" above).
 
     ``noise`` = (world force n_F [N], body torque n_τ [N·m]), already scaled by the task's std.
     """
@@ -158,9 +161,9 @@ def step(x: jax.Array, du: jax.Array, noise: jax.Array) -> jax.Array:
 def step_delayed(
     x: jax.Array, fifo: jax.Array, du: jax.Array, noise: jax.Array
 ) -> tuple[jax.Array, jax.Array]:
-    """One step with actuation delay d = ``fifo.shape[0]`` (d may be 0: fifo [0, 4, *B]).
+    """One step with actuation delay d = ``fifo.shape[0]`` (d may be 0: fifo ``[0, 4, *B]``).
 
-    The queue is concat(fifo, du[None]) [d+1, 4, *B]; the change applied (and recorded in x's
+    The queue is concat(fifo, du[None]) ``[d+1, 4, *B]``; the change applied (and recorded in x's
     ``u_prev``/``du_prev``) is queue[0], commanded d steps ago; the new fifo is queue[1:].
     Returns ``(x_next [21, *B], fifo_next [d, 4, *B])``.
     """
@@ -190,7 +193,7 @@ def hover_trim() -> HoverTrim:
     """Solve the hover force/torque balance in closed form from the model coefficients.
 
     Torques: TORQUE_BIAS + CONTROL_GAIN·c = 0. Forces at rest: R_x(φ)·(0, SIDE_FORCE, f_z) +
-    (0, 0, g) = 0, so |(SIDE_FORCE, f_z)| = g with f_z = −sqrt(g² − SIDE_FORCE²) (lift up) and
+    (0, 0, g) = 0, so ``|(SIDE_FORCE, f_z)|`` = g with f_z = −sqrt(g² − SIDE_FORCE²) (lift up) and
     φ = atan2(−SIDE_FORCE, −f_z); the collective gives f_z = LIFT + COLLECTIVE·c4.
     """
     c_rot = -jnp.asarray(TORQUE_BIAS) / jnp.asarray(CONTROL_GAIN)
@@ -243,16 +246,16 @@ def funnel_target(pads: bool = True) -> jax.Array:
 
 # ----------------------------------------------------------------------------- error coordinates
 def to_error(x: jax.Array, x_star: jax.Array) -> jax.Array:
-    """Error coordinates dx [21, *B] of x [21, *B] relative to x* [21] or [21, *B] (module
-    docstring)."""
+    """Error coordinates dx ``[21, *B]`` of x ``[21, *B]`` relative to x* ``[21]`` or
+    ``[21, *B]`` (module docstring)."""
     xs = x_star.reshape(x_star.shape + (1,) * (x.ndim - x_star.ndim))
     e = quat_mul(quat_conj(xs[QUAT]), x[QUAT])[:3]
     return jnp.concatenate([x[:17] - xs[:17], e, jnp.ones((1, *x.shape[1:]), x.dtype)])
 
 
 def from_error(dx: jax.Array, x_star: jax.Array) -> jax.Array:
-    """Inverse of :func:`to_error`: x [21, *B] with q = q* ⊗ [e, sqrt(1 − |e|²)] (dx[20]
-    ignored). For |e| > 1 (not a rotation) the scalar part is clamped to 0 instead of NaN.
+    """Inverse of :func:`to_error`: x ``[21, *B]`` with q = q* ⊗ [e, sqrt(1 − ``|e|²``)] (dx[20]
+    ignored). For ``|e|`` > 1 (not a rotation) the scalar part is clamped to 0 instead of NaN.
     """
     xs = x_star.reshape(x_star.shape + (1,) * (dx.ndim - x_star.ndim))
     e = dx[17:20]
@@ -297,7 +300,8 @@ def _rollout(x0: jax.Array, fifo0: jax.Array, dU: jax.Array, noise: jax.Array) -
 
 
 def rollout(x0, dU, noise, *, delay: int = 0) -> jax.Array:
-    """Open-loop trajectory X [*B, T+1, 21] from x0 [*B, 21] under dU [*B, T, 4], noise [*B, T, 6].
+    """Open-loop trajectory X ``[*B, T+1, 21]`` from x0 ``[*B, 21]`` under dU ``[*B, T, 4]``,
+    noise ``[*B, T, 6]``.
 
     Checked wrapper (ValueError naming the bad argument) around a jitted ``lax.scan`` of
     :func:`step_delayed` with an initially empty (zero) FIFO of ``delay`` steps. Leading batch

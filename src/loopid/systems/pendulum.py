@@ -3,7 +3,7 @@
 The dynamics and cost are those of ``gymnasium/envs/classic_control/pendulum.py`` (gymnasium 1.x),
 operation for operation, in float64. State ``x = (θ, θ̇)`` with θ = 0 upright, θ = π hanging;
 action ``u [1]`` a torque; parameters :class:`PendulumParams` (g = 10, m = l = 1, dt = 0.05,
-|θ̇| ≤ 8, |u| ≤ 2)::
+``|θ̇| ≤ 8``, ``|u| ≤ 2``)::
 
     ū     = clip(u, −u_max, u_max)
     θ̇'    = clip(θ̇ + (3g/(2l) sin θ + 3/(m l²) ū) dt, −θ̇_max, θ̇_max)
@@ -25,11 +25,11 @@ so a planner in Δx sees exactly what the loop records. A quadratic cost
 ``ΔxᵀQΔx`` with ``Q = diag(1, 1, q, 0)`` is ``2 − 2 cos θ + q θ̇²``: smooth, and ≈ θ² + q θ̇² near
 upright (Gym's θ² term has a kink at θ = ±π, which gradient-based planners cannot use).
 
-Gradients and the clips: ``jnp.clip`` has zero derivative outside its range, so for |u| > u_max
-the torque has no effect and no gradient (B = 0), and above |θ̇| = θ̇_max the speed is frozen.
+Gradients and the clips: ``jnp.clip`` has zero derivative outside its range, so for ``|u| > u_max``
+the torque has no effect and no gradient (B = 0), and above ``|θ̇| = θ̇_max`` the speed is frozen.
 The dynamics keep both clips (they are what the env does); planners keep the torque inside the
-limit with a smooth penalty on |u| > u_max (:class:`loopid.control.Penalized`), and
-a swing-up never needs |θ̇| near 8 (θ̇² ≤ 2·3g/(2l)·2 = 60 from rest at the bottom to upright).
+limit with a smooth penalty on ``|u| > u_max`` (:class:`loopid.control.Penalized`), and
+a swing-up never needs ``|θ̇|`` near 8 (θ̇² ≤ 2·3g/(2l)·2 = 60 from rest at the bottom to upright).
 
 :class:`PendulumHangingEnv` (``gymnasium.make("loopid/PendulumHanging-v0")``) is Pendulum-v1
 with a different reset: θ = π + U(−noise, noise), θ̇ = 0. Pendulum-v1's own reset options

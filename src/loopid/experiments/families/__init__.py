@@ -1,4 +1,5 @@
-"""The registry of families: which kind of system a scenario is (:class:`base.Family`).
+"""The registry of families: which kind of system a scenario is
+(:class:`~loopid.experiments.families.base.Family`).
 
 Families are found through the Python entry point group ``loopid.families``: each entry names a
 :class:`~base.Family` instance, ``name = "package.module:FAMILY"``. loopid's own register the

@@ -51,7 +51,8 @@ _NO_TABLE = Table()
 @dataclass(frozen=True)
 class GymScenario(model_planner.ModelPlanner):
     """One Gymnasium experiment (module docstring for the file format; frozen and hashable:
-    lists are kept as tuples and tables as tuples of pairs, :meth:`to_dict` gives them back).
+    lists are kept as tuples and tables as tuples of pairs, :meth:`GymScenario.to_dict` gives
+    them back).
 
     Attributes:
       name: the scenario name (``gym``).
