@@ -9,19 +9,27 @@ PY := $(VENV)/bin/python
 $(PY):
 	$(PYTHON) -m venv $(VENV)
 
-$(VENV)/.installed-run: pyproject.toml | $(PY)
+# What is installed is stamped with pyproject.toml's content, not compared with its time: a fresh
+# clone's pyproject.toml is newer than the stamps of a .venv kept from before, yet says the same,
+# and must not reinstall. An edit to pyproject.toml changes the stamp's name and reinstalls once.
+STAMP := $(shell $(PYTHON) -c "import hashlib; print(hashlib.sha256(open('pyproject.toml', 'rb').read()).hexdigest()[:12])")
+RUN_STAMP := $(VENV)/.installed-run-$(STAMP)
+TEST_STAMP := $(VENV)/.installed-test-$(STAMP)
+DOCS_STAMP := $(VENV)/.installed-docs-$(STAMP)
+
+$(RUN_STAMP): | $(PY)
 	$(PY) -m pip install -q -e .
 	touch $@
 
-$(VENV)/.installed-test: pyproject.toml | $(PY)
+$(TEST_STAMP): | $(PY)
 	$(PY) -m pip install -q -e ".[test,ray,docs]"
-	touch $@ $(VENV)/.installed-run $(VENV)/.installed-docs
+	touch $@ $(RUN_STAMP) $(DOCS_STAMP)
 
-$(VENV)/.installed-docs: pyproject.toml | $(PY)
+$(DOCS_STAMP): | $(PY)
 	$(PY) -m pip install -q -e ".[docs]"
-	touch $@ $(VENV)/.installed-run
+	touch $@ $(RUN_STAMP)
 
-reproduce: $(VENV)/.installed-run
+reproduce: $(RUN_STAMP)
 	$(VENV)/bin/loopid reproduce --out runs
 
 # The suite runs in TEST_WORKERS processes (pytest-xdist), each test file whole in one of them
@@ -29,29 +37,30 @@ reproduce: $(VENV)/.installed-run
 # TEST_WORKERS=0 runs it in this process.
 TEST_WORKERS ?= 2
 
-test: $(VENV)/.installed-test
+test: $(TEST_STAMP)
 	$(PY) -m pytest -n $(TEST_WORKERS) --dist loadfile --no-loadscope-reorder -m "not science"
 
 # The edit-test loop: everything but the slow end-to-end tests (`make test` runs those too).
-test-fast: $(VENV)/.installed-test
+test-fast: $(TEST_STAMP)
 	$(PY) -m pytest -n $(TEST_WORKERS) --dist loadfile --no-loadscope-reorder -m "not slow and not science"
 
 # The acceptance benchmarks: the 16-seed pendulum swing-up and the readings study (CI runs them
 # after make test).
-test-science: $(VENV)/.installed-test
+test-science: $(TEST_STAMP)
 	$(PY) -m pytest -n $(TEST_WORKERS) --dist loadfile --no-loadscope-reorder -m science
 
-lint: $(VENV)/.installed-test
+lint: $(TEST_STAMP)
 	$(VENV)/bin/ruff check .
 	$(VENV)/bin/ruff format --check .
 
-bench: $(VENV)/.installed-test
+bench: $(TEST_STAMP)
 	for f in benchmarks/*.py; do $(PY) $$f || exit 1; done
 
 # The documentation site, offline and strict: a broken reference, a missing image or a page
-# outside the navigation fails the build (tests/docs checks the same in make test).
-docs: $(VENV)/.installed-docs
-	$(PY) -m sphinx -n -W --keep-going -E -b html docs docs/_build/html
+# outside the navigation fails the build (tests/docs checks the same in make test, and reads the
+# pages it built). The doctrees, Sphinx's cache, stay outside the site.
+docs: $(DOCS_STAMP)
+	$(PY) -m sphinx -n -W --keep-going -E -b html -d docs/_build/doctrees docs docs/_build/html
 	@echo "open docs/_build/html/index.html"
 
 clean:
