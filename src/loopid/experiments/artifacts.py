@@ -2,7 +2,7 @@
 
 Each finished cell of a run directory has, beside its rows (``cells/S__M.parquet``)::
 
-    cells/S__M.npz    the arrays of :attr:`loopid.algorithms.contracts.Trace.final`, each [S, ...]
+    cells/S__M.npz    the arrays of Trace.final (loopid.algorithms.contracts), each [S, ...]
                       with the seeds along the first axis (``seeds`` [S]): ``K`` the last
                       policy's gains, the model's parameters (``W`` for a linear offset model,
                       ``T_hat`` for a finite MDP's), ``best_K`` / ``history`` when the test

@@ -9,9 +9,8 @@ Layout of ``DIR``::
                           it: :mod:`loopid.experiments.artifacts`)
     cells/damaged/        the files of cells found damaged on a rerun, moved aside
     results.parquet       all finished cells, in a fixed order (rewritten after every cell)
-    figure.png, report.md drawn from results.parquet
-    (:mod:`loopid.experiments.families.helicopter.figure2`,
-                          :mod:`loopid.experiments.report`)
+    figure.png, report.md drawn from results.parquet (the family's figure, and
+                          loopid.experiments.report)
 
 A cell file exists only once its cell has finished, so a killed run loses nothing finished, and
 rerunning the same command skips the finished cells. A finished cell with a file that cannot be
