@@ -2,11 +2,12 @@
 ``test_docs.py`` also reads (the ``docs_build`` fixture of ``conftest.py``: one build a session).
 
 It fails on what the strict build lets through: a backslash shown before ``_``, ``*``, ``|`` or
-``{`` (an escape that leaked into text or code), a link or ``#anchor`` to nothing, a script or
-stylesheet from the network (the site must read offline, maths included), an image in ``docs/``
-that no page shows, and a MyST role in a Markdown page that is read on GitHub, where it shows
-as raw text. Each check is a small function of one page, tried first on tiny inputs that must
-make it fail (``test_check_catches``) and one that must pass.
+``{`` (an escape that leaked into text or code), a role shown as its markup, a link or
+``#anchor`` to nothing, a script or stylesheet from the network (the site must read offline,
+maths included), an image in ``docs/`` that no page shows, and a MyST role in a Markdown page
+that is read on GitHub, where it shows as raw text. Each check is a small function of one page,
+tried first on tiny inputs that must make it fail (``test_check_catches``) and one that must
+pass.
 """
 
 import hashlib
@@ -82,6 +83,15 @@ def escapes(html: str) -> list[str]:
     return [text[max(m.start() - 20, 0) : m.end() + 20] for m in ESCAPED.finditer(text)]
 
 
+# A Sphinx role written where reStructuredText does not read it (a literal block) shows as is.
+RAW_ROLE = re.compile(r":(?:func|class|mod|meth|attr|data|obj|exc|ref|doc):`[^`]*`")
+
+
+def raw_roles(html: str) -> list[str]:
+    """Every role shown as its markup (``:attr:`x```) in the text and code a reader sees."""
+    return RAW_ROLE.findall("".join(Page(html).text))
+
+
 def network_loads(html: str) -> list[str]:
     """The scripts, stylesheets and images a page loads from another host."""
     return [url for url in Page(html).loads if urlsplit(url).scheme or url.startswith("//")]
@@ -140,13 +150,18 @@ def myst_roles(markdown: str) -> list[str]:
     return found
 
 
+# Pages the README links to that are written for the site only: the API reference is autodoc's
+# directives and roles, which no Markdown viewer renders.
+SITE_ONLY = {"docs/api/index.md"}
+
+
 def github_pages() -> list[Path]:
     """The README and the Markdown pages it links to: read on GitHub as much as on the site."""
     readme = ROOT / "README.md"
     pages = [readme]
     for target in re.findall(r"\]\(([^)\s#]+\.md)(?:#[^)]*)?\)", readme.read_text("utf-8")):
         path = (ROOT / target).resolve()
-        if path.is_file() and path not in pages:
+        if path.is_file() and path not in pages and target not in SITE_ONLY:
             pages.append(path)
     return pages
 
@@ -182,6 +197,7 @@ CLEAN = """<html><head><link rel="stylesheet" href="_static/furo.css">
         ("escapes", '<p>code <code><span class="pre">e\\_{(s,a)}</span></code></p>'),
         ("escapes", "<p>update\\|export</p>"),
         ("escapes", "<p>[n_x, \\*B]</p>"),
+        ("markup", "<pre>cells/S__M.npz    the arrays of :attr:`Trace.final`</pre>"),
         ("network", '<script src="https://cdn.example.org/mathjax/tex-chtml.js"></script>'),
         ("network", '<link rel="stylesheet" href="//fonts.example.org/a.css">'),
         ("dead", '<p id="top"></p><a href="#nowhere">x</a>'),
@@ -206,6 +222,7 @@ def test_check_catches(check, bad, tmp_path):
         pages = {p: Page(_read(p)) for p in site.glob("*.html")}
         return {
             "escapes": lambda: escapes(html),
+            "markup": lambda: raw_roles(html),
             "network": lambda: network_loads(html),
             "dead": lambda: dead_links(page, site, pages),
             "image": lambda: unshown_images([image], site, pages),
@@ -246,6 +263,16 @@ def test_no_escapes_shown(site):
             if hits := escapes(_read(path)):
                 found[path.relative_to(html).as_posix()] = hits
     assert not found, f"backslashes shown before _ * | {{:\n{_report(found)}"
+
+
+def test_no_markup_shown(site):
+    html, pages = site
+    found = {}
+    for path in pages:
+        if "_modules" not in path.relative_to(html).parts:
+            if hits := raw_roles(_read(path)):
+                found[path.relative_to(html).as_posix()] = hits
+    assert not found, f"roles shown as markup (inside a literal block?):\n{_report(found)}"
 
 
 def test_no_dead_links(site):
