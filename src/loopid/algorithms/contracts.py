@@ -205,7 +205,7 @@ class LoopSpec(NamedTuple):
       trajectories per evaluation.
     - ``mode``: how the policy's share of a batch is drawn (``trajectory``: uniformly among
       the steps of whole rollouts; ``geometric``: one step per rollout, stopped at step k with
-      probability ∝ ``gamma``^k: exact draws from the discounted state distribution
+      probability ∝ gamma^k: exact draws from the discounted state distribution
       ``D_{μ,π}``); ``gamma``: that discount.
     - ``test_policy``: the policy each iteration tests: the ``last`` one fitted, the ``best``
       so far (on a second noise set), or the uniform ``mixture`` of all so far.

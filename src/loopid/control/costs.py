@@ -48,7 +48,7 @@ class Penalized:
 
 @dataclass(frozen=True)
 class QuadraticCost:
-    """``c(x, u, t) = xᵀQx + uᵀRu (+ weight Σ_i max(|u_i| − u_limit, 0)² when ``u_limit`` is
+    """``c(x, u, t) = xᵀQx + uᵀRu (+ weight Σ_i max(|u_i| − u_limit, 0)² when u_limit is
     set)``. Frozen and hashable by value (Q and R are kept as nested tuples), so two equal costs
     share compiled code. Build it with :func:`quadratic_cost`."""
 

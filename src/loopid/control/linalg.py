@@ -4,7 +4,7 @@
 - :func:`psd_solve`: S X = rhs for a symmetric PSD ``S [m, m]`` and ``rhs [m, k]`` by Cholesky
   (written out element by element for m ≤ 8, which XLA fuses into a few kernels); where the
   factor fails, S + δI with δ = 1e-12·(tr S / m) + 1e-300; where that fails too, zeros.
-- :func:`finite_or_zero`: NaN as 0 and ±inf as ±``BLOWUP`` (1e150, the size at which the
+- :func:`finite_or_zero`: NaN as 0 and ±inf as ± ``BLOWUP`` (1e150, the size at which the
   doubling of :mod:`loopid.control.lqr` counts an iterate as diverged).
 - :func:`broadcast_batch`: the leading (batch) axes of matrices ``[..., r, c]`` broadcast to one
   batch shape.
@@ -70,7 +70,7 @@ def psd_solve(S: Array, rhs: Array) -> tuple[Array, Array]:
 
 
 def finite_or_zero(x: Array) -> Array:
-    """``x`` with NaN as 0 and ±inf as ±``BLOWUP`` (never NaN downstream)."""
+    """``x`` with NaN as 0 and ±inf as ± ``BLOWUP`` (never NaN downstream)."""
     return jnp.nan_to_num(x, nan=0.0, posinf=BLOWUP, neginf=-BLOWUP)
 
 

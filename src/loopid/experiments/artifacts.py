@@ -3,14 +3,14 @@
 Each finished cell of a run directory has, beside its rows (``cells/S__M.parquet``)::
 
     cells/S__M.npz    the arrays of Trace.final (loopid.algorithms.contracts), each [S, ...]
-                      with the seeds along the first axis (``seeds`` [S]): ``K`` the last
-                      policy's gains, the model's parameters (``W`` for a linear offset model,
-                      ``T_hat`` for a finite MDP's), ``best_K`` / ``history`` when the test
-                      policy selects them; and, under ``shared.NAME``, what every seed shares
-                      (the nominal model ``shared.A``, ``shared.B`` the offsets ``W`` add to)
+                      with the seeds along the first axis (seeds [S]): K the last
+                      policy's gains, the model's parameters (W for a linear offset model,
+                      T_hat for a finite MDP's), best_K / history when the test
+                      policy selects them; and, under shared.NAME, what every seed shares
+                      (the nominal model shared.A, shared.B the offsets W add to)
     cells/S__M.json   what they are: format version, family, scenario, method, seeds, each
                       array's name, shape and dtype, and the scenario's configuration
-                      (``config``: the coordinates the arrays are in, e.g. a Gymnasium run's
+                      (config: the coordinates the arrays are in, e.g. a Gymnasium run's
                       target, action_op, observe and horizon; the helicopter's task, pads,
                       delay and delay_mode)
 

@@ -9,7 +9,7 @@ the non-constant coordinates v only (products with the constant 1 would repeat l
 
 Feature maps:
 
-- :func:`polynomial`: ψ = all monomials of v of degree 2..``degree`` (``comb(k+d−1, d)`` of degree
+- :func:`polynomial`: ψ = all monomials of v of degree 2 to ``degree`` (``comb(k+d−1, d)`` of degree
   d); ``degree=1`` is exactly the linear offset model.
 - :func:`random_fourier`: ψ = √(2/count) cos(Ω v/σ + b), Ω ~ N(0, I) [count, k], b ~ U[0, 2π)
   (Rahimi & Recht 2007): ψ(v)ᵀψ(v') ≈ exp(−||(v − v')/σ||²/2) for large ``count``.

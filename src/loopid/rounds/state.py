@@ -2,7 +2,7 @@
 
 Layout of ``DIR``::
 
-    config.toml               the config, as given to ``loopid round init``
+    config.toml               the config, as given to loopid round init
     state.npz                 the learner's state, the round counter, the files already given
                               (their SHA-256 and the names they were given by), each round's
                               diagnostics and the scale the model is fitted in
