@@ -83,13 +83,21 @@ def escapes(html: str) -> list[str]:
     return [text[max(m.start() - 20, 0) : m.end() + 20] for m in ESCAPED.finditer(text)]
 
 
-# A Sphinx role written where reStructuredText does not read it (a literal block) shows as is.
+# A Sphinx role written where reStructuredText does not read it (a literal block) shows as is;
+# so do double backquotes that do not close (nested, or after a character such as ∝ or ±).
 RAW_ROLE = re.compile(r":(?:func|class|mod|meth|attr|data|obj|exc|ref|doc):`[^`]*`")
 
 
 def raw_roles(html: str) -> list[str]:
     """Every role shown as its markup (``:attr:`x```) in the text and code a reader sees."""
     return RAW_ROLE.findall("".join(Page(html).text))
+
+
+def raw_literals(html: str) -> list[str]:
+    """Every pair of backquotes shown, with a few characters around it (in the API pages, where
+    no docstring means to show one)."""
+    text = "".join(Page(html).text)
+    return [text[max(m.start() - 20, 0) : m.end() + 20] for m in re.finditer("``", text)]
 
 
 def network_loads(html: str) -> list[str]:
@@ -198,6 +206,7 @@ CLEAN = """<html><head><link rel="stylesheet" href="_static/furo.css">
         ("escapes", "<p>update\\|export</p>"),
         ("escapes", "<p>[n_x, \\*B]</p>"),
         ("markup", "<pre>cells/S__M.npz    the arrays of :attr:`Trace.final`</pre>"),
+        ("literal", "<p>probability ∝ ``gamma``^k</p>"),
         ("network", '<script src="https://cdn.example.org/mathjax/tex-chtml.js"></script>'),
         ("network", '<link rel="stylesheet" href="//fonts.example.org/a.css">'),
         ("dead", '<p id="top"></p><a href="#nowhere">x</a>'),
@@ -223,6 +232,7 @@ def test_check_catches(check, bad, tmp_path):
         return {
             "escapes": lambda: escapes(html),
             "markup": lambda: raw_roles(html),
+            "literal": lambda: raw_literals(html),
             "network": lambda: network_loads(html),
             "dead": lambda: dead_links(page, site, pages),
             "image": lambda: unshown_images([image], site, pages),
@@ -266,13 +276,17 @@ def test_no_escapes_shown(site):
 
 
 def test_no_markup_shown(site):
+    """No role shown as markup on any page, and no double backquotes on the API pages."""
     html, pages = site
     found = {}
     for path in pages:
-        if "_modules" not in path.relative_to(html).parts:
-            if hits := raw_roles(_read(path)):
-                found[path.relative_to(html).as_posix()] = hits
-    assert not found, f"roles shown as markup (inside a literal block?):\n{_report(found)}"
+        name = path.relative_to(html).as_posix()
+        if not name.startswith("_modules/"):
+            hits = raw_roles(_read(path))
+            hits += raw_literals(_read(path)) if name.startswith("api/") else []
+            if hits:
+                found[name] = hits
+    assert not found, f"markup shown as text (inside a literal block?):\n{_report(found)}"
 
 
 def test_no_dead_links(site):
