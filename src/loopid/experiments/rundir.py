@@ -6,7 +6,7 @@ Layout of ``DIR``::
                           seeds as a count, a {start, count} range or, when given so, a list
     cells/S__M.parquet    one file per finished cell (scenario S × method M), written atomically;
                           its metadata holds the cell's wall time (its model and policy beside
-                          it: :mod:`loopid.experiments.artifacts`)
+                          it: loopid.experiments.artifacts)
     cells/damaged/        the files of cells found damaged on a rerun, moved aside
     results.parquet       all finished cells, in a fixed order (rewritten after every cell)
     figure.png, report.md drawn from results.parquet (the family's figure, and

@@ -17,7 +17,7 @@ system is run by a person) and ``[rounds]`` of the run's settings::
     [rounds]   samples (m, transitions per round, default 200), method (dagger | batch |
                abbeel, default dagger), dagger_fraction (default 0.5), scale (std | none,
                default std: each column divided by its first round's standard deviation
-               before the fit, :mod:`loopid.rounds.scale`)
+               before the fit, loopid.rounds.scale)
 
 The coordinates are an observed system's (:class:`~loopid.algorithms.host_agent.EnvShape`):
 ``Δx = [o − o*; 1]`` (``n = n_obs + 1``), ``Δu = a − a_op``, and a linear controller acts

@@ -6,7 +6,7 @@ Layout of ``DIR``::
     state.npz                 the learner's state, the round counter, the files already given
                               (their SHA-256 and the names they were given by), each round's
                               diagnostics and the scale the model is fitted in
-                              (:mod:`loopid.rounds.scale`): the commit record
+                              (loopid.rounds.scale): the commit record
     controllers/round-NNN.npz controller N (π_N): gains K [horizon, m, n] in Δx = [o − o*; 1]
                               (a = a_op − K_t Δx), the identified model A, B in the log's
                               units (a linear model) or the model an MPC controller re-plans
