@@ -3,7 +3,7 @@ and the README's run, the README stays short, and no user-facing text points at 
 
 The strict build (``sphinx-build -n -W --keep-going -E``, as ``make docs``) fails on a broken
 cross-reference, a missing image or a page left out of the navigation. It runs in a subprocess
-(``conftest.py``, shared with ``test_html.py``) started when this module starts, so it overlaps
+(``docs_build.py``, shared with ``test_html.py``) started when this module starts, so it overlaps
 the code blocks, which run in this process.
 """
 
@@ -14,6 +14,7 @@ import re
 from pathlib import Path
 
 import pytest
+from docs_build import docs_build_fixture  # noqa: F401  (the one build of the site, a fixture)
 
 ROOT = Path(__file__).resolve().parents[2]
 DOCS = ROOT / "docs"
@@ -56,7 +57,7 @@ INTERNAL = re.compile(r"\bSPEC\b|\b[Ii]ssue\s+#?\d+")
 
 @pytest.fixture(scope="module", autouse=True)
 def start_build(docs_build):
-    """Start the build (``conftest.py``) before the first test of this module, so that it runs
+    """Start the build (``docs_build.py``) before the first test of this module, so that it runs
     while the code blocks do."""
 
 

@@ -1,5 +1,5 @@
 """The built site as a reader's browser sees it, read from the strict build that
-``test_docs.py`` also reads (the ``docs_build`` fixture of ``conftest.py``: one build a session).
+``test_docs.py`` also reads (the ``docs_build`` fixture of ``docs_build.py``: one build a run).
 
 It fails on what the strict build lets through: a backslash shown before ``_``, ``*``, ``|`` or
 ``{`` (an escape that leaked into text or code), a role shown as its markup, a link or
@@ -17,6 +17,7 @@ from pathlib import Path
 from urllib.parse import unquote, urlsplit
 
 import pytest
+from docs_build import docs_build_fixture  # noqa: F401  (the one build of the site, a fixture)
 
 ROOT = Path(__file__).resolve().parents[2]
 DOCS = ROOT / "docs"

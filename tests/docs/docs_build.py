@@ -4,6 +4,10 @@
 Under pytest-xdist each worker is a session of its own, so the build is claimed through the
 file system: the first worker to create the run's ``docs-build`` folder starts it, in a
 subprocess that writes its exit status last; every worker waits for that file.
+
+Not a ``conftest.py``: the suite's own ``tests/conftest.py`` is imported by name (``from conftest
+import cli``), and a second module of that name would shadow it. A test module imports the
+fixture: ``from docs_build import docs_build_fixture``.
 """
 
 import os
@@ -19,8 +23,8 @@ DOCS = Path(__file__).resolve().parents[2] / "docs"
 TIMEOUT_S = 600
 
 
-@pytest.fixture(scope="session")
-def docs_build(tmp_path_factory):
+@pytest.fixture(scope="session", name="docs_build")
+def docs_build_fixture(tmp_path_factory):
     """The strict build (``sphinx-build -n -W --keep-going -E``, as ``make docs``), started at
     once in a subprocess; yields a function that waits for it and returns ``(returncode,
     warnings, html directory)``."""
