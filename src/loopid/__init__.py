@@ -84,7 +84,12 @@ _register_envs()
 
 
 def load(run_dir, scenario: str, method: str, seed: int):
-    """The saved final model and controller of a run (:func:`loopid.experiments.saved.load`)."""
+    """The saved final model and controller of a run (:func:`loopid.experiments.saved.load`).
+
+    Raises:
+      loopid.experiments.artifacts.Damaged: a file of the run cannot be read (a ``ValueError``
+        whose one-line message names the file and says to run the command again).
+    """
     from loopid.experiments.saved import load as _load
 
     return _load(run_dir, scenario, method, seed)

@@ -13,11 +13,13 @@ says what to collect next. The command line is ``loopid round init|update|export
 """
 
 from loopid.rounds.api import Controller, Update, controller, init, update
+from loopid.rounds.checks import RoundWarning
 from loopid.rounds.config import RoundsConfig, read_config
 from loopid.rounds.export import export
 
 __all__ = [
     "Controller",
+    "RoundWarning",
     "RoundsConfig",
     "Update",
     "controller",
