@@ -163,3 +163,20 @@ def test_batch_plans_no_policy_rows(tmp_path):
     ):
         rounds.update(root, write_round(tmp_path / "one.parquet", _split(rng, 40, 1)))
     assert rounds.update(root, write_round(tmp_path / "nu.parquet", _split(rng, 40, 0))).round == 2
+
+
+def test_a_committed_copy_is_read_without_its_episode_columns(started, tmp_path):
+    """A directory whose committed copy holds an ``episode`` column with an empty value and a
+    ``terminated`` column of words (a version that ignored those columns took it) still learns
+    the next file; the new file's own columns are still checked."""
+    root, _, rng = started
+    copy = root / "data" / "round-001.parquet"
+    table = pq.read_table(copy)
+    labels = pa.array([None] + ["e1"] * (table.num_rows - 1), pa.string())
+    table = table.append_column("episode", labels)
+    table = table.append_column("terminated", pa.array(["no"] * table.num_rows))
+    pq.write_table(table, copy)
+    with pytest.raises(ValueError, match="column 'episode' has 1 empty value"):
+        rounds.update(root, write_round(tmp_path / "bad.parquet", dict(
+            transitions(rng, 40), episode=labels.to_pylist())))  # fmt: skip
+    assert rounds.update(root, write_round(tmp_path / "next.parquet", transitions(rng, 40)))

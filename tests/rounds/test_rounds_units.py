@@ -28,7 +28,7 @@ target = [{target}, 0.0]
 horizon = 40
 [cost]
 Q = [{q}, 0.1]
-R = [0.01]
+R = [{r}]
 [rounds]
 samples = 40
 {rounds}
@@ -50,7 +50,9 @@ def run(tmp_path, name: str, unit: float, scale: str, k: int = 3):
     """A round directory fed ``k`` rounds with the tilt in ``unit``s per radian (Q and the
     target to match)."""
     cfg = tmp_path / f"{name}.toml"
-    cfg.write_text(CONFIG.format(target=0.01 * unit, q=1.0 / unit**2, rounds=f'scale = "{scale}"'))
+    cfg.write_text(
+        CONFIG.format(r=0.01, target=0.01 * unit, q=1.0 / unit**2, rounds=f'scale = "{scale}"')
+    )
     root = tmp_path / name
     rounds.init(root, cfg)
     for i, r in enumerate(physical_rounds(k)):
@@ -95,7 +97,7 @@ def test_model_in_the_log_units_and_the_scale_recorded(tmp_path):
 
 def test_a_column_without_spread_keeps_unit_scale(tmp_path):
     cfg = tmp_path / "c.toml"
-    cfg.write_text(CONFIG.format(target=0.0, q=1.0, rounds=""))
+    cfg.write_text(CONFIG.format(r=0.01, target=0.0, q=1.0, rounds=""))
     root = tmp_path / "dir"
     rounds.init(root, cfg)
     r = physical_rounds(1)[0]
@@ -151,18 +153,20 @@ def test_an_old_directory_keeps_unit_scale(tmp_path):
 
 
 def test_an_mpc_controller_acts_in_the_log_units(tmp_path):
-    """Features + MPC: planned in the scaled coordinates, the same actions in either unit."""
+    """Features + MPC: planned in the scaled coordinates, the same actions in either unit, with
+    the tilt in degrees and the torque in N·mm (R to match); its JSON export carries the scale
+    its model's parameters act in."""
     extra = '[model]\nkind = "features"\n[planner]\nkind = "mpc"\nhorizon = 5\niterations = 3'
     got = []
-    for unit in (1.0, DEG):
+    for unit, torque in ((1.0, 1.0), (DEG, 1000.0)):
         cfg = tmp_path / f"{unit}.toml"
-        text = CONFIG.format(target=0.01 * unit, q=1.0 / unit**2, rounds="")
+        text = CONFIG.format(r=0.01 / torque**2, target=0.01 * unit, q=1.0 / unit**2, rounds="")
         cfg.write_text(text.replace("[rounds]", extra + "\n[rounds]"))
         root = tmp_path / f"mpc-{unit}"
         rounds.init(root, cfg)
         r = physical_rounds(1)[0]
         x, xn = r["x"] * [unit, 1.0], r["xn"] * [unit, 1.0]
-        cols = {"tilt": x[:, 0], "rate": x[:, 1], "torque": r["u"][:, 0]}
+        cols = {"tilt": x[:, 0], "rate": x[:, 1], "torque": r["u"][:, 0] * torque}
         cols |= {
             "next_tilt": xn[:, 0],
             "next_rate": xn[:, 1],
@@ -170,14 +174,18 @@ def test_an_mpc_controller_acts_in_the_log_units(tmp_path):
         }
         rounds.update(root, write_round(tmp_path / f"m{unit}.parquet", cols))
         obs = np.array([[0.03, 0.01], [-0.02, 0.04]]) * [unit, 1.0]
-        got.append(np.asarray(rounds.controller(root).act(obs, [0, 0], [0, 1])))
+        got.append(np.asarray(rounds.controller(root).act(obs, [0, 0], [0, 1])) / torque)
+        saved = json.loads(rounds.export(root, "json").read_text())
+        arrays = controller_arrays(root)
+        assert saved["scale_states"] == arrays["scale_states"].tolist()
+        assert saved["scale_actions"] == arrays["scale_actions"].tolist()
     assert got[0].shape == (2, 1) and np.abs(got[0]).max() > 1e-4
     assert np.abs(got[1] - got[0]).max() <= 1e-9 * np.abs(got[0]).max()
 
 
 def test_a_bad_scale_is_refused(tmp_path):
     cfg = tmp_path / "c.toml"
-    cfg.write_text(CONFIG.format(target=0.0, q=1.0, rounds='scale = "rms"'))
+    cfg.write_text(CONFIG.format(r=0.01, target=0.0, q=1.0, rounds='scale = "rms"'))
     with pytest.raises(ValueError, match="scale must be one of std, none, got 'rms'") as err:
         rounds.init(tmp_path / "dir", cfg)
     assert "\n" not in str(err.value) and not (tmp_path / "dir").exists()

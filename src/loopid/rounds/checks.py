@@ -69,7 +69,7 @@ def learned_rows(root, config: RoundsConfig, state) -> list[RoundData]:
     for n in range(1, state.round):
         path = data_path(root, n)
         try:
-            out.append(read_round(path, config))
+            out.append(read_round(path, config, episodes=False))
         except ValueError as err:
             why = str(err).split(": ", 1)[-1]
             if why.startswith("cannot read it ("):

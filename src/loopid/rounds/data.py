@@ -190,8 +190,10 @@ def _episodes(table: pa.Table, where: str) -> tuple:
     return episode, terminated
 
 
-def read_round(path, config: RoundsConfig) -> RoundData:
-    """The checked transitions of ``path`` under ``config`` (module docstring)."""
+def read_round(path, config: RoundsConfig, *, episodes: bool = True) -> RoundData:
+    """The checked transitions of ``path`` under ``config`` (module docstring). ``episodes``:
+    read the optional ``episode`` and ``terminated`` columns (off for a round directory's
+    committed copies, which a version that ignored those columns may have accepted)."""
     path = Path(path)
     if not path.is_file():
         raise ValueError(f"{str(path)!r}: no such file")
@@ -238,7 +240,7 @@ def read_round(path, config: RoundsConfig) -> RoundData:
     return RoundData(
         _numbers(table, states, where), _numbers(table, actions, where),
         _numbers(table, nexts, where), labels == "policy", t, digest_of(path), table,
-        *_episodes(table, where),
+        *(_episodes(table, where) if episodes else (None, None)),
     )  # fmt: skip
 
 

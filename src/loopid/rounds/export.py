@@ -10,8 +10,9 @@ arrays: ``loopid_target``, ``loopid_action_op``, ``loopid_K`` and
 ``static inline void loopid_action(const double *x, int t, double *u)`` (``x [n_obs]`` in, ``u
 [m]`` out). Numbers are written in their shortest round-trip form, so the header computes the
 same actions as the Python controller to rounding. A controller that re-plans online (MPC on
-the learned model) has no gains: it is exported as json or npz (the model's parameters), never
-as C.
+the learned model) has no gains: it is exported as json or npz (the model's parameters, which
+act in the scaled coordinates of :mod:`loopid.rounds.scale`, with ``scale_states`` and
+``scale_actions``: ``o / scale_states`` in, ``u_s · scale_actions`` out), never as C.
 
 The identified model (the linear model controller N was solved on) is written in the log's
 units, in the form of the config's ``[system] A`` and ``B``: ``Δx' = A Δx + B Δu`` with
@@ -181,6 +182,10 @@ def _json(arrays: dict, n: int) -> str:
     if out["kind"] == "mpc":
         out["model"] = {k[6:]: np.asarray(v).tolist() for k, v in arrays.items()
                         if k.startswith("model_")}  # fmt: skip
+        # the model's parameters act in the scaled coordinates (loopid.rounds.scale)
+        for k in ("scale_states", "scale_actions"):
+            if k in arrays:
+                out[k] = np.asarray(arrays[k]).tolist()
     else:
         K = gains(arrays)
         out |= {"time_varying": K.ndim == 3, "K": K.tolist()}

@@ -65,9 +65,9 @@ def pull(config_s, rows_s, model_s, scale: Scale, config) -> dict:
     ``{"pull", "where", "fit", "ls"}`` (the coefficient's two values in the log's units) or
     ``{"pull": None, "why"}``."""
     if model_s is None:
-        return {"pull": None, "why": f"not measured for the {config.model_kind} model class"}
+        return {"pull": None, "why": f"the {config.model_kind} model class has no A and B"}
     if config_s.time_varying:
-        return {"pull": None, "why": "not measured for a time-varying model"}
+        return {"pull": None, "why": "the model is time-varying"}
     nominal = nominal_model(config_s.spec, config_s.shape)
     batches = [transitions(d, config_s) for d in rows_s]
     dx, du, dxn = (np.concatenate([np.asarray(getattr(b, k)) for b in batches])

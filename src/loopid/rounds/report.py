@@ -152,7 +152,7 @@ def _pull(p: dict | None) -> str:
     if p is None:
         return "The regulariser's pull is not measured for this round."
     if p["pull"] is None:
-        return f"The regulariser's pull is {p['why']}."
+        return f"The regulariser's pull is not measured: {p['why']}."
     pct = f"{100 * p['pull']:.3g} %"
     if p["pull"] > PULL_WARN:
         return (
