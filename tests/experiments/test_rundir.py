@@ -285,6 +285,12 @@ def test_a_damaged_cell_file_is_named_then_moved_aside_and_computed_again(
     assert all(np.array_equal(again[k], before[k]) for k in before)
     counted.clear()
     assert execute.run_cells(out, SCENARIOS, METHODS).equals(whole) and counted == []
+    # damaged again: the copy set aside before stays, the new one is numbered
+    npz.write_bytes(npz.read_bytes()[:100])
+    assert execute.run_cells(out, SCENARIOS, METHODS).equals(whole)
+    damaged = out / "cells" / "damaged"
+    assert (damaged / "hover__expert.npz").read_bytes() == truncated
+    assert (damaged / "hover__expert.npz.2").stat().st_size == 100
 
 
 @pytest.mark.parametrize(

@@ -156,9 +156,14 @@ class RunDir:
                 return True
             aside = self.cells / "damaged"
             aside.mkdir(exist_ok=True)
-            for f in (rows, *others):
+            # a file damaged before keeps its copy there: the later one is numbered
+            names = [f"{prefix}.{f.name}" if prefix else f.name for f in (rows, *others)]
+            k = 1
+            while any((aside / _numbered(name, k)).exists() for name in names):
+                k += 1
+            for f, name in zip((rows, *others), names, strict=True):
                 try:
-                    os.replace(f, aside / (f"{prefix}.{f.name}" if prefix else f.name))
+                    os.replace(f, aside / _numbered(name, k))
                 except FileNotFoundError:
                     pass
             print(
@@ -190,3 +195,8 @@ class RunDir:
     def cell_metadata(self, scenario: str, method: str) -> dict[str, str]:
         """What a finished cell recorded besides its rows (``wall_s``, ``first_s``: seconds)."""
         return metadata(self.cell_file(scenario, method))
+
+
+def _numbered(name: str, k: int) -> str:
+    """``name`` the first time a file of that name is set aside, then ``name.k`` (``k`` ≥ 2)."""
+    return name if k == 1 else f"{name}.{k}"
