@@ -1,6 +1,6 @@
 """A ``loopid reproduce`` run against a reference run, under the equivalence rule an engine
-change that may move bits is held to (``tests/equivalence.py``: the rule, its readings and the
-per-cell report).
+change that may move bits is held to (``benchmarks/equivalence_rule.py``: the rule, its readings
+and the per-cell report).
 
     .venv/bin/python benchmarks/equivalence.py REFERENCE_RUN_DIR NEW_RUN_DIR
 
@@ -15,10 +15,9 @@ import argparse
 import sys
 from pathlib import Path
 
-# The rule lives beside the tests that check it (tests/equivalence.py), not in the package.
-sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "tests"))
-
-import equivalence  # tests/equivalence.py
+# The rule is this script's sibling (a script's own folder is on sys.path), not in the package;
+# the tests import it as ``benchmarks.equivalence_rule``.
+import equivalence_rule
 
 
 def main(argv=None) -> int:
@@ -32,9 +31,9 @@ def main(argv=None) -> int:
         parser.print_usage()
         print("Nothing to compare: give a reference run directory and a new one.")
         return 0
-    result = equivalence.evaluate(args.reference, args.new)
+    result = equivalence_rule.evaluate(args.reference, args.new)
     print(f"# {args.new} against {args.reference}\n")
-    print("\n".join(equivalence.report(result)))
+    print("\n".join(equivalence_rule.report(result)))
     return 1 if result.failures else 0
 
 

@@ -28,12 +28,12 @@ from loopid.algorithms.loop import run_learning
 from loopid.algorithms.loop_program import make_loop_program
 from loopid.algorithms.model_based import linear_agent
 from loopid.experiments.families.helicopter import methods as M
-from loopid.experiments.families.helicopter.expert import expert_gains
-from loopid.experiments.families.helicopter.plant import helicopter_nominal_model, helicopter_plant
 from loopid.experiments.families.helicopter.scenario import scenario
 from loopid.learners import ftrl_least_squares
 from loopid.systems import helicopter as h
-from loopid.systems.tasks import make_task
+from loopid.systems.helicopter.expert import expert_gains
+from loopid.systems.helicopter.plant import helicopter_nominal_model, helicopter_plant
+from loopid.systems.helicopter.tasks import make_task
 from sim import np_quat_mul, np_step  # benchmarks/sim.py
 
 METHOD = "dagger-t"

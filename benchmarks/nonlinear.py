@@ -15,19 +15,18 @@
       FTRL least squares (λ = 1e-3) on 40 random starts × 200 steps of uniform random torques,
       planned through ``feature_model.dynamics`` with W traced (``plan(params=W)``).
     - The nose-in funnel (``make_task("funnel")``, Δx [21] error coordinates along the target,
-      Δu [4], T = 599 steps, 600 target states), cost ΔxᵀQΔx + ΔuᵀRΔu, the expert's initial
-      actions (:func:`loopid.experiments.families.helicopter.expert.funnel_initial_actions`). True
-      model: the noise-free helicopter step in error coordinates, Δx' = to_error(step(from_error(Δx,
-      x*_t), Δu, 0), x*_{t+1}), the target traced as ``params``. Learned: one global feature model
-      for all steps, Δx' = A_tΔx + B_tΔu + Wᵀφ(Δx, Δu) on the ``"heading"`` funnel nominal
-      (:func:`loopid.systems.funnel_nominal.funnel_nominal`), φ polynomial degree 2 (F = 325) or
-      400 random Fourier features (F = 425), W fitted by FTRL on one-step queries of the true
-      model about the true-model row's plan (32 per step, states and actions ± N(0, 0.05²));
-      both start from that plan's closed loop (:func:`plan_rows_funnel`; its learned plans are
-      not finite, which leaves the time per iteration unchanged, see there). A
-      third row is the expert's own formulation (:func:`loopid.control.ilqr` on the raw 21-state
-      step with the cost in error coordinates, as
-      :func:`loopid.experiments.families.helicopter.expert.funnel_expert_gains` runs it).
+      Δu [4], T = 599 steps, 600 target states), cost ΔxᵀQΔx + ΔuᵀRΔu, the expert's initial actions
+      (:func:`loopid.systems.helicopter.expert.funnel_initial_actions`). True model: the noise-free
+      helicopter step in error coordinates, Δx' = to_error(step(from_error(Δx, x*_t), Δu, 0),
+      x*_{t+1}), the target traced as ``params``. Learned: one global feature model for all steps,
+      Δx' = A_tΔx + B_tΔu + Wᵀφ(Δx, Δu) on the ``"heading"`` funnel nominal
+      (:func:`loopid.systems.helicopter.funnel_nominal.funnel_nominal`), φ polynomial degree 2 (F =
+      325) or 400 random Fourier features (F = 425), W fitted by FTRL on one-step queries of the
+      true model about the true-model row's plan (32 per step, states and actions ± N(0, 0.05²));
+      both start from that plan's closed loop (:func:`plan_rows_funnel`; its learned plans are not
+      finite, which leaves the time per iteration unchanged, see there). A third row is the expert's
+      own formulation (:func:`loopid.control.ilqr` on the raw 21-state step with the cost in error
+      coordinates, as :func:`loopid.systems.helicopter.expert.funnel_expert_gains` runs it).
 
 (b) MPC step rate: :class:`loopid.control.MPCController` (horizon 60, 10 iLQR iterations, the
     warm start plus the alternatives ±2, re-planning every 1 or 4 steps) driving 8
@@ -60,7 +59,6 @@ import numpy as np
 
 import loopid  # noqa: F401  (float64, registers loopid/PendulumHanging-v0)
 from loopid import control
-from loopid.experiments.families.helicopter.expert import funnel_initial_actions
 from loopid.learners import ftrl_least_squares
 from loopid.models import feature_maps as FM
 from loopid.models import feature_model as F
@@ -68,9 +66,10 @@ from loopid.models.linear_offset import LinearOffsetModel
 from loopid.systems import helicopter as h
 from loopid.systems import pendulum
 from loopid.systems.from_gymnasium import GymSystem
-from loopid.systems.funnel_nominal import funnel_nominal
 from loopid.systems.gym_slots import Slot
-from loopid.systems.tasks import make_task
+from loopid.systems.helicopter.expert import funnel_initial_actions
+from loopid.systems.helicopter.funnel_nominal import funnel_nominal
+from loopid.systems.helicopter.tasks import make_task
 
 PUSH = jnp.array([[2.0], [-2.0]])  # the swing-up's alternative initial actions (±u_max)
 COST = control.Penalized(pendulum.cost_obs, 2.0, 100.0)
@@ -259,8 +258,8 @@ def mpc_plant_rows(repeats, quick):
     from loopid.algorithms.mpc_plant import mpc_plant
     from loopid.algorithms.plant import make_plant
     from loopid.algorithms.transitions import flatten
-    from loopid.experiments.families.helicopter.expert import expert_gains
     from loopid.models.linear_offset import hover_nominal
+    from loopid.systems.helicopter.expert import expert_gains
 
     task = make_task("hover")
     plant = make_plant(task, h.DYNAMICS)

@@ -25,7 +25,7 @@ import scipy.linalg
 
 import loopid  # noqa: F401  (float64)
 from loopid.systems import helicopter as h
-from loopid.systems.tasks import HOVER_WEIGHTS, cost_matrices
+from loopid.systems.helicopter.tasks import HOVER_WEIGHTS, cost_matrices
 
 T = 400
 BATCHES = (1, 100, 1_000, 10_000)
@@ -183,9 +183,9 @@ def main():
 def bench_test_evaluation():
     from loopid.algorithms.keys import seed_keys
     from loopid.algorithms.loop_program import eval_noise
-    from loopid.experiments.families.helicopter.expert import expert_gains
-    from loopid.experiments.families.helicopter.plant import helicopter_plant
-    from loopid.systems.tasks import make_task
+    from loopid.systems.helicopter.expert import expert_gains
+    from loopid.systems.helicopter.plant import helicopter_plant
+    from loopid.systems.helicopter.tasks import make_task
 
     seeds, n_test = 20, 100
     task = make_task("hover-delay")

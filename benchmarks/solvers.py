@@ -22,9 +22,7 @@ labelled line as a second reference; the goal is stated against the first.
 from __future__ import annotations
 
 import statistics
-import sys
 import time
-from pathlib import Path
 
 import jax
 import jax.numpy as jnp
@@ -38,9 +36,8 @@ except ImportError:  # pragma: no cover
 
 import loopid  # noqa: F401  (float64)
 from loopid.control import dlqr, ilqr, tvlqr
-from loopid.systems import helicopter, tasks
-
-sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests" / "control"))
+from loopid.systems import helicopter
+from loopid.systems.base import trajectory_cost
 
 
 def timed(fn, repeats):
@@ -135,16 +132,18 @@ def bench_tvlqr(rng, count=20, T=400, n=21, m=4):
 
 
 def bench_ilqr():
-    from test_ilqr import funnel_expert_problem
+    from loopid.systems.helicopter.expert import funnel_expert_problem
+    from loopid.systems.helicopter.tasks import make_task
 
-    task, dynamics, cost, U0 = funnel_expert_problem()
+    task = make_task("funnel")
+    dynamics, cost, U0, _ = funnel_expert_problem(task)
     t0 = time.perf_counter()
     sol = jax.block_until_ready(ilqr(dynamics, cost, task.x0, U0))
     first = time.perf_counter() - t0
     wall = timed(lambda: ilqr(dynamics, cost, task.x0, U0).X, 3)
     dX = jax.vmap(helicopter.to_error)(sol.X, task.target)
     pos = float(np.max(np.linalg.norm(np.asarray(dX[:, 11:14]), axis=1)))
-    cost_check = float(tasks.trajectory_cost(dX, sol.U, task.Q, task.R))
+    cost_check = float(trajectory_cost(dX, sol.U, task.Q, task.R))
     return sol, first, wall, pos, cost_check
 
 

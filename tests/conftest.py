@@ -88,3 +88,17 @@ def funnel_setup():
     from loopid.experiments.families.helicopter.scenario import scenario
 
     return setup(scenario("funnel"))
+
+
+@pytest.fixture(scope="session")
+def funnel_expert():
+    """The padded funnel's plant and its expert's gains ``K_expert`` (the 599-step iLQR), from
+    the system package alone, computed once per session for the engine's tests."""
+    from types import SimpleNamespace
+
+    from loopid.systems.helicopter.expert import expert_gains
+    from loopid.systems.helicopter.plant import helicopter_plant
+    from loopid.systems.helicopter.tasks import make_task
+
+    plant = helicopter_plant(make_task("funnel"))
+    return SimpleNamespace(plant=plant, K_expert=expert_gains(plant.task))

@@ -212,7 +212,7 @@ def test_reproduce_quick_writes_the_four_files(quick):
 @pytest.mark.science
 def test_study_quick_writes_every_file_and_covers_every_reading(tmp_path, cache, quick):
     """``loopid study --quick``, sharing the default reading's cells with a reproduce run."""
-    from loopid.experiments.families.helicopter.study import FIGURES, READING_FIELDS, READINGS
+    from loopid.paper.study import FIGURES, READING_FIELDS, READINGS
 
     before = cell_mtimes(quick)
     out = tmp_path / "study"

@@ -1,5 +1,5 @@
-"""The equivalence rule (``tests/equivalence.py``) on synthetic tables: it fails each kind of
-change it is meant to catch and passes what it is meant to allow (no JAX run)."""
+"""The equivalence rule (``benchmarks/equivalence_rule.py``) on synthetic tables: it fails each
+kind of change it is meant to catch and passes what it is meant to allow (no JAX run)."""
 
 import math
 import subprocess
@@ -10,8 +10,8 @@ import numpy as np
 import pyarrow as pa
 import pyarrow.parquet as pq
 import pytest
+from benchmarks import equivalence_rule as E
 
-import equivalence as E
 from loopid.experiments.families.helicopter.findings import findings
 
 ROOT = Path(__file__).resolve().parent.parent

@@ -74,7 +74,7 @@ def cycles(graph: dict[str, set[str]]) -> list[list[str]]:
 def test_the_graph_is_read():
     graph = import_graph()
     assert "loopid.experiments.executors" in graph
-    assert "loopid.algorithms.loop" in graph["loopid.experiments.families.helicopter.runs"]
+    assert "loopid.algorithms.loop" in graph["loopid.experiments.families.helicopter.run"]
 
 
 def test_the_cycle_finder_finds_a_cycle():

@@ -1,7 +1,7 @@
 """The tests mirror the package: a test of the core (``tests/algorithms``, ``control``,
-``learners``, ``models``, ``systems`` and the top-level modules' ``tests/test_*.py`` of the
-core, e.g. ``test_theory.py``) imports nothing of the experiments layer or the command line,
-at its top or inside a function. A test that needs a scenario, a family or a run directory
+``learners``, ``models``, ``systems`` and the core's top-level ``tests/test_*.py`` named in
+:data:`CORE_FILES`) imports nothing of the experiments layer or the command line, at its top or
+inside a function. A test that needs a scenario, a family or a run directory
 belongs in ``tests/experiments`` (or ``tests/test_cli*.py``)."""
 
 import ast
@@ -147,6 +147,52 @@ def test_the_layer_checks_see_a_family_import(tmp_path):
     assert family_modules(imported_modules(bad)) == {
         "loopid.experiments.families.helicopter",
         "loopid.experiments.families.helicopter.scenario",
+    }
+
+
+#: The modules every family package has, one per part of the family interface: its config,
+#: its runs, its report and figures, its saved policies and models.
+FAMILY_LAYOUT = ("scenario.py", "run.py", "report.py", "saved.py")
+
+
+def families_missing_layout(families: Path) -> dict[str, list[str]]:
+    """``{family: [missing module, ...]}`` for every family package under ``families`` (each
+    folder with an ``__init__.py``) that lacks one of :data:`FAMILY_LAYOUT`."""
+    missing = {}
+    for package in sorted(p for p in families.iterdir() if (p / "__init__.py").is_file()):
+        lacks = [name for name in FAMILY_LAYOUT if not (package / name).is_file()]
+        if lacks:
+            missing[package.name] = lacks
+    return missing
+
+
+def test_every_family_package_has_the_layout_modules():
+    families = SRC / "experiments" / "families"
+    packages = [p.name for p in families.iterdir() if (p / "__init__.py").is_file()]
+    assert {"helicopter", "mdp", "gym"} <= set(packages)
+    assert families_missing_layout(families) == {}
+
+
+def test_the_layout_check_sees_a_family_lacking_a_module(tmp_path):
+    (tmp_path / "__init__.py").write_text("")
+    (tmp_path / "base.py").write_text("")  # a module of the registry, not a family
+    (tmp_path / "notes").mkdir()  # a folder without __init__.py is no family
+    for family, modules in {
+        "whole": FAMILY_LAYOUT,
+        "nosaved": ("scenario.py", "run.py", "report.py"),
+        "bare": (),
+    }.items():
+        (tmp_path / family).mkdir()
+        for name in ("__init__.py", *modules):
+            (tmp_path / family / name).write_text("")
+    (tmp_path / "reportdir").mkdir()  # report.py as a folder is not the module
+    for name in ("__init__.py", "scenario.py", "run.py", "saved.py"):
+        (tmp_path / "reportdir" / name).write_text("")
+    (tmp_path / "reportdir" / "report.py").mkdir()
+    assert families_missing_layout(tmp_path) == {
+        "bare": list(FAMILY_LAYOUT),
+        "nosaved": ["saved.py"],
+        "reportdir": ["report.py"],
     }
 
 

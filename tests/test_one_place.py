@@ -43,8 +43,8 @@ def test_a_systems_step_is_called_only_by_the_delayed_loop_and_the_one_step_quer
     files = _files(_calls("step_delayed"))
     allowed = {
         "algorithms/plant.py",  # query: one generative step, no controller
-        "systems/helicopter.py",  # the system's own simulate (an open-loop action sequence)
-        "systems/as_gymnasium.py",  # the Gymnasium env's own step
+        "systems/helicopter/dynamics.py",  # its own simulate (an open-loop action sequence)
+        "systems/helicopter/gymnasium_env.py",  # the Gymnasium env's own step
     }
     assert files <= allowed, files - allowed
     # the closed loops step through DelayedLoop.act

@@ -37,6 +37,7 @@ from loopid.experiments.commands import (
     workers_for,
 )
 from loopid.experiments.families import families
+from loopid.paper.commands import COMMANDS as PAPER_COMMANDS
 from loopid.rounds.commands import round_app
 
 app = typer.Typer(
@@ -192,7 +193,9 @@ def run(
     )  # fmt: skip
 
 
-for _family in families().values():  # the commands families add, after run
+for _command in PAPER_COMMANDS:  # the paper's reproduction, then the commands families add
+    app.command()(_command)
+for _family in families().values():
     for _command in _family.commands:
         app.command()(_command)
 

@@ -6,7 +6,8 @@ import numpy as np
 import pytest
 
 from loopid.control import ilqr, linear_rollout, quadratize, tvlqr
-from loopid.systems import helicopter, tasks
+from loopid.systems import helicopter
+from loopid.systems.helicopter import tasks
 
 
 def lq_problem(rng, n=4, m=2, T=30):

@@ -8,7 +8,8 @@ import scipy.linalg as sl
 
 import control
 from loopid.control import dlqr, dlqr_affine, tvlqr
-from loopid.systems import helicopter, tasks
+from loopid.systems import helicopter
+from loopid.systems.helicopter import tasks
 
 
 def random_system(rng, n=21, m=4, scale=1.1):

@@ -7,7 +7,8 @@ import pytest
 
 from loopid.control import dlqr_affine
 from loopid.control.spectral import spectral_radius
-from loopid.systems import helicopter, tasks
+from loopid.systems import helicopter
+from loopid.systems.helicopter import tasks
 
 
 def similar(rng, lam, kappa):

@@ -27,10 +27,11 @@ PACKAGES = [
     "loopid.learners",
     "loopid.models",
     "loopid.systems",
+    "loopid.systems.helicopter",
     "loopid.algorithms",
     "loopid.settings",
     "loopid.experiments",
-    "loopid.experiments.families.mdp.theory",  # a module with its own __all__
+    "loopid.systems.mdp_bounds",  # a module with its own __all__
     "loopid.rounds",
 ]
 

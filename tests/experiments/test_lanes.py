@@ -3,7 +3,9 @@ program gives each method the numbers it has alone, bit for bit, in any subset a
 
 Small finite MDPs keep the programs cheap; two ν samplers make the lanes draw from a list
 (the helicopter's three, with the expert's rollouts, are checked end to end in
-``tests/experiments/test_lane_sets.py``)."""
+``tests/experiments/test_lane_sets.py``). The plant, agent and diagnostics are the MDP family's
+(:mod:`loopid.experiments.families.mdp.agent`), so these tests live here; the lane set's pieces
+that need no system are ``tests/algorithms/test_lane_inputs.py``."""
 
 import jax
 import numpy as np
@@ -11,9 +13,9 @@ import pytest
 
 from conftest import tree_allclose
 from loopid.algorithms import loop
-from loopid.algorithms.contracts import EvalNoise, LoopSpec
+from loopid.algorithms.contracts import LoopSpec
 from loopid.algorithms.loop import iteration_block, program_memory, run_lanes, run_learning
-from loopid.algorithms.loop_program import lane_noise, make_loop_program
+from loopid.algorithms.loop_program import make_loop_program
 from loopid.experiments.families.helicopter.methods import policy_fractions
 from loopid.experiments.families.mdp.agent import (
     counts_model,
@@ -137,19 +139,3 @@ def test_blocks_of_iterations_give_the_rows_of_one_call_per_iteration(lanes, mon
     assert iteration_block(7, 5) == 1
     with pytest.raises(ValueError, match="block must be an integer >= 1, got 0"):
         run(METHODS, block=0)
-
-
-def test_lane_noise_repeats_each_seed_method_major():
-    w = np.arange(2 * 3 * 4 * 5, dtype=float).reshape(2, 3, 4, 5)  # [horizon, n_noise, S, n]
-    noise = lane_noise(EvalNoise(w, np.zeros(0)), 3)
-    tiled = np.asarray(noise.test)
-    assert tiled.shape == (2, 3, 12, 5) and noise.select.shape == (0,)
-    for m in range(3):
-        np.testing.assert_array_equal(tiled[:, :, 4 * m : 4 * (m + 1)], w)
-
-
-def test_schedules_must_be_methods_by_iterations():
-    with pytest.raises(ValueError, match="schedules must be"):
-        run_lanes(LoopSpec(None, None, None, samples=1, n_test=1), [0.5, 0.5], SEEDS)
-    with pytest.raises(ValueError, match="policy fractions must lie in"):
-        run_lanes(LoopSpec(None, None, None, samples=1, n_test=1), [[0.5, 1.5]], SEEDS)

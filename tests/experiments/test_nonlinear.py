@@ -64,11 +64,11 @@ def test_dagger_swings_the_pendulum_up_with_features_and_the_linear_model_cannot
     rounding level. Three computations of the model's Jacobian that agree to ~2e-16 give 15 of
     16 (the analytic derivative, ``FeatureMap.jacobian``, what runs), 15 (``jax.jacfwd``
     through the features) and 16 (``jax.jacrev``) for the tested policy on the first CPU, and
-    14, 12 and 16 for the last policy (``benchmarks/swingup_seeds.py``): a model that swung up
-    can lose it at the next iteration, and the best policy so far keeps what it found. XLA
-    compiles for the CPU's own vector instructions, so another CPU rounds differently and
-    moves the count the same way (the analytic Jacobian's 15 is 14 on the EPYC). The test
-    asks for the lowest count measured, not the best.
+    14, 12 and 16 for the last policy (``analysis/swingup_seeds/swingup_seeds.py``): a model that
+    swung up can lose it at the next iteration, and the best policy so far keeps what it found. XLA
+    compiles for the CPU's own vector instructions, so another CPU rounds differently and moves the
+    count the same way (the analytic Jacobian's 15 is 14 on the EPYC). The test asks for the lowest
+    count measured, not the best.
 
     The linear model with LQR, the same data and ν, swings up on none of 3 seeds (measured:
     every seed's policies stay near the bottom, costs above 1,000). Batch (ν's data only) is

@@ -10,10 +10,10 @@ import pytest
 
 from loopid.algorithms.exploration import Centre, nu_trajectory, planned_flight
 from loopid.experiments.families.helicopter.assembly import nu_t_centre
-from loopid.experiments.families.helicopter.expert import expert_gains
-from loopid.experiments.families.helicopter.plant import helicopter_plant
 from loopid.systems import helicopter
-from loopid.systems.tasks import make_task
+from loopid.systems.helicopter.expert import expert_gains
+from loopid.systems.helicopter.plant import helicopter_plant
+from loopid.systems.helicopter.tasks import make_task
 
 DRAWS = 20_000
 STATE_STD, ACTION_STD = 0.05, 0.01  # ν_t's defaults: variances 0.0025 and 0.0001

@@ -7,8 +7,8 @@ import pyarrow.parquet as pq
 import pytest
 
 from loopid.experiments import curves, report
-from loopid.experiments.families.helicopter import figure2 as plots
 from loopid.experiments.families.helicopter import findings
+from loopid.experiments.families.helicopter import report as plots
 from loopid.experiments.results import SCHEMA, read_table
 
 PANELS = ("hover", "hover-delay", "funnel")

@@ -249,7 +249,7 @@ def test_the_flown_path_costs_what_the_plant_charged(delay_mode):
     from those states, is the plant's test cost of the same policy and noise (an independent
     recomputation: SPEC §4.1's sum, not the plant's scan)."""
     from loopid.experiments.families.helicopter.flights import fly
-    from loopid.systems.tasks import trajectory_cost
+    from loopid.systems.base import trajectory_cost
 
     s = scenario("hover-delay", delay_mode=delay_mode)
     st = helicopter.setup(s)

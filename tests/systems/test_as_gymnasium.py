@@ -7,8 +7,8 @@ import pytest
 from gymnasium.utils.env_checker import check_env
 
 from loopid.systems import helicopter as h
-from loopid.systems.as_gymnasium import HelicopterEnv
-from loopid.systems.tasks import trajectory_cost
+from loopid.systems.base import trajectory_cost
+from loopid.systems.helicopter.gymnasium_env import HelicopterEnv
 
 IDS = ["loopid/HelicopterHover-v0", "loopid/HelicopterHoverDelay-v0", "loopid/HelicopterFunnel-v0"]
 

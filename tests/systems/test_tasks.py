@@ -5,13 +5,13 @@ import numpy as np
 import pytest
 
 from loopid.systems import helicopter as h
-from loopid.systems.tasks import (
+from loopid.systems.base import trajectory_cost
+from loopid.systems.helicopter.tasks import (
     FUNNEL_WEIGHTS,
     HOVER_WEIGHTS,
     TASK_NAMES,
     cost_matrices,
     make_task,
-    trajectory_cost,
 )
 
 OMEGA = 2 * np.pi / 5

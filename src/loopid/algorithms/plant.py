@@ -55,8 +55,7 @@ import numpy as np
 from loopid.algorithms.closed_loop import DelayedLoop, check_delay_mode
 from loopid.algorithms.contracts import Transitions
 from loopid.algorithms.transitions import clean
-from loopid.systems.base import Dynamics
-from loopid.systems.tasks import Task
+from loopid.systems.base import Dynamics, Task
 
 
 class Plant(NamedTuple):
@@ -122,7 +121,7 @@ def make_plant(
     """A JAX system (:class:`loopid.systems.base.Dynamics`) under ``task`` as a :class:`Plant`.
 
     Args:
-      task: a :class:`loopid.systems.tasks.Task` (target ``[T, k]``, noise std, delay, Q, R, x0).
+      task: a :class:`loopid.systems.base.Task` (target ``[T, k]``, noise std, delay, Q, R, x0).
       dynamics: the system's step, error coordinates and noise.
       stop_norm: training trajectories restart from μ when ``‖[Δx_{:−1}; Δu]‖₂ > stop_norm``.
       nu_pending: delayed-query convention for ν samples under ``fifo``: ``"hold"``, ``"zero"``

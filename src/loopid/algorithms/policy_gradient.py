@@ -13,9 +13,9 @@ conservative step or plain descent, with the two readings of "samples" and of th
 rollouts from the test's start μ (:mod:`loopid.algorithms.policy_gradient_rollouts`) within the
 m samples of the other methods; :func:`run_policy_gradient` runs it on every seed.
 
-Why. Numbers from hover at π_1 (θ = 0), exact autodiff gradients of
-the test objective ``J_400`` (400 steps from μ) over 200 noise draws
-(``examples/pg_gradient_quality.py``), and scratch runs of 4-8 seeds with 50 test trajectories:
+Why. Numbers from hover at π_1 (θ = 0), exact autodiff gradients of the test objective ``J_400``
+(400 steps from μ) over 200 noise draws (``analysis/pg_gradient/pg_gradient_quality.py``), and
+scratch runs of 4-8 seeds with 50 test trajectories:
 
 - *(choice)* **Rollouts from μ, the test's start state** (τ = 0, empty delay FIFO), because the
   baseline is judged on ``J_μ``. CPI-style restarts from ν_t-like states gave directions with

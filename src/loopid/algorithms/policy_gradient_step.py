@@ -47,7 +47,7 @@ CPI, except gradient descent is done directly on deterministic linear controller
   ``P ≥ d`` one shared draw determines the system, so ``g`` is that draw's gradient whatever m is
   (the estimates of m = 100 and m = 500 from the same key have cosine 0.95-0.99 on hover), and
   every step is accepted, so the radius never shrinks and θ moves by ρ_1 per iteration
-  (``examples/pg_sample_count.py``). The pace is set by ρ_1, not by m.
+  (``analysis/pg_gradient/pg_sample_count.py``). The pace is set by ρ_1, not by m.
 - ``"descent"`` (the scenarios' default, preset ``probable``): plain gradient descent on noisy
   samples, ``θ ← θ − α g`` in scaled coordinates, always taken. Every rollout of an iteration has
   its own noise draw (a sample is one rollout's measured cost, as on a real system), so the

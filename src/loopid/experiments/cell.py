@@ -2,9 +2,9 @@
 methods) or one chunk of its seeds, into its rows, timings and final policies.
 
 An executor (:mod:`loopid.experiments.executors`) runs :func:`run_chunk` for each task that
-:func:`loopid.experiments.execute.run_all` planned (:mod:`loopid.experiments.tasks`); the run
+:func:`loopid.experiments.execute.run_all` planned (:mod:`loopid.experiments.jobs`); the run
 saves what it returns (:class:`CellResult`), or resplits the seeds of a task that returned
-:class:`Oversized` (:func:`loopid.experiments.tasks.resplit`).
+:class:`Oversized` (:func:`loopid.experiments.jobs.resplit`).
 """
 
 import time
@@ -18,8 +18,8 @@ from loopid.algorithms.contracts import Row
 from loopid.experiments import compilations
 from loopid.experiments.compilations import Programs
 from loopid.experiments.families import family_of
+from loopid.experiments.jobs import method_names
 from loopid.experiments.results import trace_table, with_metadata
-from loopid.experiments.tasks import method_names
 
 #: A scenario of any family (its config dataclass).
 Scenario = Any

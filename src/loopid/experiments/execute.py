@@ -5,7 +5,7 @@ for any family (:mod:`loopid.experiments.families`).
 workers against the machine's CPUs and memory, that ``out`` can be written, that a run
 directory already there holds the same configuration), then:
 
-1. splits each unfinished cell's missing seeds into tasks (:mod:`loopid.experiments.tasks`:
+1. splits each unfinished cell's missing seeds into tasks (:mod:`loopid.experiments.jobs`:
    one method's, or a lane set's methods'), in chunks of
    :data:`~loopid.experiments.chunks.LANE_WIDTH` lanes on a CPU (families with a memory estimate;
    :mod:`loopid.experiments.chunks`; on an accelerator, one process per device, or threads
@@ -62,17 +62,17 @@ from loopid.experiments.executors import (
     ray_session,
 )
 from loopid.experiments.families import Family, family_of, scenario_names
-from loopid.experiments.report import cell_times, report_text
-from loopid.experiments.results import with_metadata
-from loopid.experiments.rundir import RunDir, config_family, normalized
-from loopid.experiments.seeds import seeds_value
-from loopid.experiments.tasks import (
+from loopid.experiments.jobs import (
     ProgressFactory,
     lane_sets,
     plan,
     progress_bars,
     resplit,
 )
+from loopid.experiments.report import cell_times, report_text
+from loopid.experiments.results import with_metadata
+from loopid.experiments.rundir import RunDir, config_family, normalized
+from loopid.experiments.seeds import seeds_value
 from loopid.files import write_atomic_bytes
 
 #: A scenario of any family (its config dataclass).

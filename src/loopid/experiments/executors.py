@@ -35,7 +35,7 @@ EXECUTORS = ("local", "ray")
 
 class Job(NamedTuple):
     """One task: a scenario (any family's config), a method (or a lane set's tuple of methods,
-    :mod:`loopid.experiments.tasks`), the seeds it runs (a whole cell's, or one chunk's),
+    :mod:`loopid.experiments.jobs`), the seeds it runs (a whole cell's, or one chunk's),
     ``part``: the chunk's ``(start, stop)`` positions in the run's seed list (None for a whole
     cell), and ``program``: jobs with the same one run the same compiled programs (None: the
     scenario's and method's own; jobs with different ones may share some)."""

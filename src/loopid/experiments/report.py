@@ -19,7 +19,7 @@ import pyarrow as pa
 
 import loopid
 from loopid.experiments import backend
-from loopid.experiments.costs import Costs, significant
+from loopid.experiments.final_costs import Costs, significant
 
 
 class CellTime(NamedTuple):

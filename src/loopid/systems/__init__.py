@@ -1,9 +1,8 @@
 """The real systems: the 21-state helicopter (pure JAX), its tasks and Gymnasium envs, a
 linear-Gaussian test system, finite MDPs, and any Gymnasium environment (:class:`GymSystem`)."""
 
-from loopid.systems import helicopter, tasks
-from loopid.systems.as_gymnasium import HelicopterEnv
-from loopid.systems.base import Dynamics
+from loopid.systems import helicopter
+from loopid.systems.base import Dynamics, Task, trajectory_cost
 from loopid.systems.from_gymnasium import GymSystem
 from loopid.systems.gym_cost import ObservationCost, observation_cost
 from loopid.systems.helicopter import (
@@ -19,17 +18,16 @@ from loopid.systems.helicopter import (
     target_increment,
     to_error,
 )
-from loopid.systems.linear import linear_dynamics, linear_task
-from loopid.systems.mdp import FiniteMDP, check_mdp, gridworld, make_mdp, random_mdp, trap_mdp
-from loopid.systems.tasks import (
+from loopid.systems.helicopter.gymnasium_env import HelicopterEnv
+from loopid.systems.helicopter.tasks import (
     FUNNEL_WEIGHTS,
     HOVER_WEIGHTS,
     TASK_NAMES,
-    Task,
     cost_matrices,
     make_task,
-    trajectory_cost,
 )
+from loopid.systems.linear import linear_dynamics, linear_task
+from loopid.systems.mdp import FiniteMDP, check_mdp, gridworld, make_mdp, random_mdp, trap_mdp
 
 __all__ = [
     "FUNNEL_WEIGHTS",
@@ -61,7 +59,6 @@ __all__ = [
     "step",
     "step_delayed",
     "target_increment",
-    "tasks",
     "to_error",
     "trajectory_cost",
     "trap_mdp",

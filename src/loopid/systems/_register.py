@@ -1,27 +1,18 @@
-"""Gymnasium registration of the helicopter tasks and the hanging pendulum (called once by
+"""Gymnasium registration of loopid's environments: the helicopter tasks
+(:mod:`loopid.systems.helicopter.gymnasium_env`) and the hanging pendulum (called once by
 ``import loopid``)."""
 
 import gymnasium
 
-ENV_IDS = {
-    "loopid/HelicopterHover-v0": "hover",
-    "loopid/HelicopterHoverDelay-v0": "hover-delay",
-    "loopid/HelicopterFunnel-v0": "funnel",
-}
+from loopid.systems.helicopter.gymnasium_env import register_helicopter_envs
 
 PENDULUM_ID = "loopid/PendulumHanging-v0"
 """Pendulum-v1 started hanging down (:class:`loopid.systems.pendulum.PendulumHangingEnv`)."""
 
 
 def register_envs() -> None:
-    """Register every id above; a second call is a no-op."""
-    for env_id, task in ENV_IDS.items():
-        if env_id not in gymnasium.registry:
-            gymnasium.register(
-                id=env_id,
-                entry_point="loopid.systems.as_gymnasium:HelicopterEnv",
-                kwargs={"task": task},
-            )
+    """Register every loopid id; a second call is a no-op."""
+    register_helicopter_envs()
     if PENDULUM_ID not in gymnasium.registry:
         gymnasium.register(
             id=PENDULUM_ID,

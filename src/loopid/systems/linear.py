@@ -8,8 +8,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from loopid.systems.base import Dynamics
-from loopid.systems.tasks import Task
+from loopid.systems.base import Dynamics, Task
 
 
 def linear_dynamics(A, B) -> Dynamics:

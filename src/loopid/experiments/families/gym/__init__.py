@@ -11,22 +11,24 @@ Methods: ``dagger`` (p_n = ``dagger_fraction``), ``batch`` (p_n = 0), ``abbeel``
 n = 2, then the policy's), run by :func:`loopid.algorithms.gym_loop.run_learning_host`. Figure:
 mean test cost against samples, ± one standard error, per method; report: the final costs.
 
-One module per idea:
+One module per part of the family interface, as in every family (:mod:`.scenario`,
+:mod:`.run`, :mod:`.report`, :mod:`.saved`), and two of its own (:mod:`.env`, :mod:`.setup`):
 
 - :mod:`.scenario`: :class:`GymScenario`, its checks and its TOML file (:func:`read_file`,
   :func:`build`);
 - :mod:`.env`: the one place an env is built and closed (:func:`make_system`);
 - :mod:`.setup`: the :class:`Setup` every entry point builds once (the env, ν, the test cost
-  and the compiled agent of :mod:`loopid.algorithms.host_agent`), :func:`run`, :func:`check`,
-  :func:`shared`;
+  and the compiled agent of :mod:`loopid.algorithms.host_agent`), and :func:`check`;
+- :mod:`.run`: :func:`run` (one method on every seed) and :func:`shared`;
 - :mod:`.saved`: saved policies reloaded, evaluated and filmed (:func:`load`,
   :func:`evaluate`, :func:`animate`);
-- :mod:`.figures`: :func:`figure`, :func:`trajectories` and :func:`report`.
+- :mod:`.report`: :func:`figure`, :func:`trajectories` and :func:`report`.
 """
 
 from loopid.experiments.families.base import Family
 from loopid.experiments.families.gym.env import EnvSpec, env_shape, make_system
-from loopid.experiments.families.gym.figures import figure, report, trajectories
+from loopid.experiments.families.gym.report import figure, report, trajectories
+from loopid.experiments.families.gym.run import run, shared
 from loopid.experiments.families.gym.saved import animate, evaluate, load, saved_policy
 from loopid.experiments.families.gym.scenario import (
     FIELDS,
@@ -37,7 +39,7 @@ from loopid.experiments.families.gym.scenario import (
     read_file,
     validate,
 )
-from loopid.experiments.families.gym.setup import Setup, check, gym_setup, run, shared
+from loopid.experiments.families.gym.setup import Setup, check, gym_setup
 
 
 class GymFamily(Family):

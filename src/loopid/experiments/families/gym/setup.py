@@ -2,14 +2,11 @@
 
 :func:`gym_setup` opens the scenario's env (:mod:`.env`) and builds everything a cell or a saved
 policy needs from it: the env's sizes and coordinates, the compiled agent
-(:func:`loopid.algorithms.host_agent.compiled_agent`, cached across calls), ν and the test
-cost. ``run`` (one cell), ``check``, ``shared``, ``load``, ``evaluate``, ``trajectories`` and
-``animate`` all take that one object; the env is closed when the ``with`` block ends. Every
-problem found while building it (a size that does not fit the env, a ``module:function`` that
-does not import) is one line of ``ValueError``.
-
-Methods: ``dagger`` (p_n = ``dagger_fraction``), ``batch`` (p_n = 0), ``abbeel`` (ν's data at
-n = 2, then the policy's), run by :func:`loopid.algorithms.gym_loop.run_learning_host`.
+(:func:`loopid.algorithms.host_agent.compiled_agent`, cached across calls), ν and the test cost.
+``run`` and ``shared`` (:mod:`loopid.experiments.families.gym.run`), ``check``, ``load``,
+``evaluate``, ``trajectories`` and ``animate`` all take that one object; the env is closed when
+the ``with`` block ends. Every problem found while building it (a size that does not fit the
+env, a ``module:function`` that does not import) is one line of ``ValueError``.
 """
 
 from collections.abc import Iterator
@@ -18,8 +15,7 @@ from typing import Any, NamedTuple
 
 import numpy as np
 
-from loopid.algorithms.contracts import Trace
-from loopid.algorithms.gym_loop import Exploration, run_learning_host
+from loopid.algorithms.gym_loop import Exploration
 from loopid.algorithms.host_agent import (
     CompiledAgent,
     EnvShape,
@@ -27,13 +23,9 @@ from loopid.algorithms.host_agent import (
     compiled_agent,
     design_cost,
     import_callable,
-    nominal_model,
 )
-from loopid.algorithms.schedules import policy_fractions
-from loopid.experiments.families.base import Progress
 from loopid.experiments.families.gym.env import env_shape, opened_system
-from loopid.experiments.families.gym.scenario import METHODS, GymScenario
-from loopid.experiments.seeds import seed_list
+from loopid.experiments.families.gym.scenario import GymScenario
 from loopid.systems.from_gymnasium import GymSystem
 from loopid.systems.gym_policies import CallablePolicy, OpenLoopPolicy
 
@@ -100,27 +92,3 @@ def check(s: GymScenario) -> None:
     before anything is written."""
     with gym_setup(s):
         pass
-
-
-def run(method: str, s: GymScenario, seeds=None, progress: Progress | None = None) -> Trace:
-    """Run ``method`` (:data:`~.scenario.METHODS`) on every seed (default
-    :func:`~loopid.experiments.seeds.seed_list`): ``N = iterations`` rows per seed."""
-    if method not in METHODS:
-        raise ValueError(f"unknown gym method {method!r}; choose from {', '.join(METHODS)}")
-    with gym_setup(s) as setup:
-        seeds = seed_list(s) if seeds is None else np.asarray(seeds)
-        fractions = policy_fractions(method, s.iterations, dagger_fraction=s.dagger_fraction)
-        return run_learning_host(
-            setup.system, setup.compiled.agent, setup.exploration, fractions,
-            [int(x) for x in seeds], samples=s.samples, n_test=s.test_trajectories,
-            cost=setup.test_cost, termination_cost=s.termination, cost_cap=s.cost_cap,
-            progress=progress, program=setup.compiled.program, controller=setup.compiled.controller,
-            test_policy=s.test_policy,
-        )  # fmt: skip
-
-
-def shared(s: GymScenario, method: str) -> dict:
-    """The nominal model ``A``, ``B`` every seed's learned offsets add to."""
-    with gym_setup(s) as setup:
-        model = nominal_model(s.spec, setup.shape)
-    return {"A": np.asarray(model.A), "B": np.asarray(model.B)}

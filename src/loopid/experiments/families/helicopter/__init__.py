@@ -5,19 +5,22 @@ Config: :class:`loopid.experiments.families.helicopter.scenario.Scenario` (the p
 ``hover``, ``hover-delay`` and ``funnel``, every protocol setting a field). Methods: the paper's
 nine, :data:`loopid.experiments.families.helicopter.methods.METHODS`.
 
-For a scenario the family builds the plant (the JAX helicopter under the task:
-:func:`loopid.experiments.families.helicopter.plant.helicopter_plant`), the linearised expert L, the
-initial model (:func:`loopid.experiments.families.helicopter.plant.helicopter_nominal_model`), the
-model-based agent (linear offset model, FTRL, LQR) and the exploration distributions, once per
-compiled program (:mod:`loopid.experiments.families.helicopter.assembly`); then it runs a
-method on all seeds at once, or the learning methods as one lane set, the default on an
-accelerator (:mod:`loopid.experiments.families.helicopter.runs`, on
-:mod:`loopid.algorithms.loop`). Figure: the paper's Figure 2
-(:mod:`loopid.experiments.families.helicopter.figure2`);
-report: the final costs with each panel's readings of the details the paper leaves open
-(:mod:`loopid.experiments.families.helicopter.readings`), and the paper's five findings
-(:mod:`loopid.experiments.families.helicopter.findings`); saved policies and models loaded,
-evaluated, flown and animated (:mod:`loopid.experiments.families.helicopter.saved`).
+The helicopter itself (its dynamics, tasks, expert L, plant and nominal models) is the system
+package :mod:`loopid.systems.helicopter`; this package holds the experiment, one module per part
+of the :class:`~loopid.experiments.families.base.Family` interface, as in every family:
+
+- :mod:`.scenario`: the config and its checks; :mod:`.readings`, the readings of the details
+  the paper leaves open; :mod:`.methods`, the nine methods;
+- :mod:`.run`: ``run`` (a method on all seeds at once, or the learning methods as one lane set,
+  on :mod:`loopid.algorithms.loop`), over the plant, expert, initial model, agent and
+  exploration distributions that :mod:`.assembly` builds once per compiled program;
+- :mod:`.report`: ``report`` (the final costs with each panel's readings, and the paper's five
+  findings, :mod:`.findings`) and ``figure`` (the paper's Figure 2);
+- :mod:`.saved`: ``load`` and ``evaluate`` (saved policies and models reloaded and flown on
+  fresh noise), ``trajectories`` and ``animate`` (drawn by :mod:`.flights`).
+
+The paper's whole reproduction, which spans this family and the finite MDP, is
+:mod:`loopid.paper`.
 """
 
 from loopid.experiments.families.base import Family
@@ -30,8 +33,8 @@ from loopid.experiments.families.helicopter.assembly import (
     program_key,
     setup,
 )
-from loopid.experiments.families.helicopter.commands import COMMANDS
-from loopid.experiments.families.helicopter.runs import (
+from loopid.experiments.families.helicopter.report import figure, report
+from loopid.experiments.families.helicopter.run import (
     NOT_LANES,
     lane_sets,
     memory,
@@ -39,14 +42,7 @@ from loopid.experiments.families.helicopter.runs import (
     run_lanes,
     shared,
 )
-from loopid.experiments.families.helicopter.saved import (
-    animate,
-    evaluate,
-    figure,
-    load,
-    report,
-    trajectories,
-)
+from loopid.experiments.families.helicopter.saved import animate, evaluate, load, trajectories
 from loopid.experiments.families.helicopter.scenario import FIELDS, SCENARIOS, Scenario, scenario
 from loopid.settings import model_planner
 from loopid.settings.toml import read_flat_file
@@ -61,7 +57,6 @@ class HelicopterFamily(Family):
     methods = M.METHODS
     scenarios = SCENARIOS
     presets = readings.PRESETS
-    commands = COMMANDS
 
     def build(self, name, fields):
         return scenario(name, **fields)

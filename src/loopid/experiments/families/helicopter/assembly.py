@@ -22,13 +22,13 @@ from loopid.algorithms.exploration import Centre, make_nus, planned_flight
 from loopid.algorithms.keys import seed_keys
 from loopid.algorithms.loop_program import make_loop_program
 from loopid.algorithms.plant import Plant
-from loopid.experiments.families.helicopter import plant as core
-from loopid.experiments.families.helicopter.expert import expert_gains
 from loopid.experiments.families.helicopter.scenario import Scenario
 from loopid.models.linear_offset import LinearOffsetModel
 from loopid.settings import model_planner
 from loopid.systems import helicopter
-from loopid.systems.tasks import make_task
+from loopid.systems.helicopter import plant as core
+from loopid.systems.helicopter.expert import expert_gains
+from loopid.systems.helicopter.tasks import make_task
 
 
 class Setup(NamedTuple):
@@ -38,7 +38,7 @@ class Setup(NamedTuple):
       plant: the helicopter under the scenario's task (:class:`loopid.algorithms.plant.Plant`).
       K_expert: the expert's gains ``[T, 4, 21]`` (the LQR of the true simulator's
         linearisation about the target,
-        :func:`loopid.experiments.families.helicopter.expert.expert_gains`).
+        :func:`loopid.systems.helicopter.expert.expert_gains`).
       nominal: the initial model every learned offset adds to.
       model: the ``model_*`` model class (:func:`loopid.algorithms.agents.model_class`),
         or None for the paper's linear offset model.

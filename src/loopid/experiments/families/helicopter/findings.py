@@ -31,7 +31,7 @@ from typing import NamedTuple
 import numpy as np
 import pyarrow as pa
 
-from loopid.experiments.costs import Costs, significant
+from loopid.experiments.final_costs import Costs, significant
 from loopid.experiments.paired import (
     FAILS,
     HOLDS,

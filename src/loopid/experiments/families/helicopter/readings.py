@@ -12,7 +12,7 @@ A *reading* is one defensible way to build such a detail; each is a field of
 - ``funnel_nominal``: the funnel's initial model: the hover linearisation taken at the target's
   heading (``heading``), or at the heading the hover started with (``spec``), without the
   target's increment (``no-increment``), or with the hover model's drift along the target
-  (``drift``); :mod:`loopid.systems.funnel_nominal`.
+  (``drift``); :mod:`loopid.systems.helicopter.funnel_nominal`.
 - ``pads``: the 600-step funnel with hover pads, or the 400-step circles alone.
 - ``pg_samples``: what the policy gradient's m samples per iteration are: perturbed-gain
   rollouts, each scored by its cost (``rollouts``), or transitions (``transitions``).

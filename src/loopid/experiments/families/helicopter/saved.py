@@ -1,5 +1,5 @@
-"""A helicopter run's outputs: its report sections and figure, and its saved policies and
-models loaded, evaluated on fresh noise, flown and animated."""
+"""A helicopter run's saved policies and models: loaded, evaluated on fresh noise, flown and
+animated."""
 
 from pathlib import Path
 
@@ -12,32 +12,10 @@ from loopid.algorithms.loop_program import noise_program
 from loopid.experiments.artifacts import tested_gains
 from loopid.experiments.families.helicopter import methods as M
 from loopid.experiments.families.helicopter.assembly import scenario_plant, setup
-from loopid.experiments.families.helicopter.findings import findings_section
-from loopid.experiments.families.helicopter.scenario import Scenario, readings_line
-from loopid.experiments.report import final_cost_sections
+from loopid.experiments.families.helicopter.scenario import Scenario
 from loopid.models.linear_offset import LinearOffsetModel
 from loopid.settings import model_planner
 from loopid.systems import helicopter
-from loopid.systems.tasks import is_hover
-
-
-def report(table, configs: dict[str, Scenario]) -> list[str]:
-    """The final costs per panel, each with its readings
-    (:mod:`loopid.experiments.families.helicopter.readings`), and the five findings."""
-    notes = {
-        name: f"Readings: {readings_line(s)}."
-        + ("" if model_planner.is_default(s) else f" {model_planner.describe(s)}")
-        for name, s in configs.items()
-    }
-    hover = {name for name, s in configs.items() if is_hover(s.task)}
-    return [*final_cost_sections(table, notes), *findings_section(table, hover)]
-
-
-def figure(table, path, configs) -> None:
-    """The paper's Figure 2 (:func:`loopid.experiments.families.helicopter.figure2.figure`)."""
-    from loopid.experiments.families.helicopter.figure2 import figure as figure2
-
-    figure2(table, path)
 
 
 def load(s: Scenario, method: str, arrays: dict):

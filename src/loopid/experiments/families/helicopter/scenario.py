@@ -32,8 +32,8 @@ from loopid.experiments.families.helicopter.readings import (
 from loopid.settings import model_planner
 from loopid.settings.checks import check_int, check_number, replaced
 from loopid.settings.toml import read_flat_file
-from loopid.systems.funnel_nominal import FUNNEL_NOMINALS
-from loopid.systems.tasks import TASK_DELAYS, TASK_NAMES
+from loopid.systems.helicopter.funnel_nominal import FUNNEL_NOMINALS
+from loopid.systems.helicopter.tasks import TASK_DELAYS, TASK_NAMES
 
 
 @dataclass(frozen=True)
@@ -42,7 +42,7 @@ class Scenario(model_planner.ModelPlanner):
 
     Attributes:
       name: the scenario name (``hover``, ``hover-delay``, ``funnel``).
-      task: the helicopter task (:data:`loopid.systems.tasks.TASK_NAMES`).
+      task: the helicopter task (:data:`loopid.systems.helicopter.tasks.TASK_NAMES`).
       iterations: N, policies per run (iteration 1 is the initial model; N − 1 batches).
       samples: m, transitions per iteration.
       test_trajectories: test trajectories per evaluation point (common random numbers).

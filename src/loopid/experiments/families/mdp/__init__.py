@@ -22,26 +22,26 @@ Extra result columns (:func:`loopid.experiments.families.mdp.agent.mdp_diagnosti
 Lemma 4.1 once the policies contribute), ``eps_prd_l1``, ``eps_prd_kl``, ``eps_mdl_l1``,
 ``eps_oc``, ``c_nu``, ``c_nu_policy``. ``test_cost`` is the exact J of the iteration's policy.
 
-One module per idea: :mod:`.scenario` (the scenarios, their MDP, ν, model and compiled loop program,
-:func:`run_mdp`, saved policies reloaded and evaluated exactly) and :mod:`.figures` (the
-figure, the report section and ``trajectories.png``).
+One module per part of the family interface, as in every family: :mod:`.scenario` (the
+scenarios and their checks, their MDP, ν and model), :mod:`.run` (the compiled loop program and
+:func:`run_mdp`), :mod:`.report` (the figure, the report section and ``trajectories.png``) and
+:mod:`.saved` (saved policies reloaded and evaluated exactly); beside them :mod:`.agent` (the
+MDP's plant, models and agent, and the exact diagnostics, from the bounds of
+:mod:`loopid.systems.mdp_bounds`).
 """
 
 from dataclasses import fields
 
 from loopid.algorithms.loop import program_memory
 from loopid.experiments.families.base import Family
-from loopid.experiments.families.mdp.figures import mdp_figure, report, trajectories
+from loopid.experiments.families.mdp.report import mdp_figure, report, trajectories
+from loopid.experiments.families.mdp.run import MDPSetup, mdp_setup, run_mdp
+from loopid.experiments.families.mdp.saved import evaluate, load
 from loopid.experiments.families.mdp.scenario import (
     MDP_METHODS,
     MDP_SCENARIOS,
     MDPScenario,
-    MDPSetup,
     build,
-    evaluate,
-    load,
-    mdp_setup,
-    run_mdp,
     scenario_mdp,
     scenario_model,
     scenario_nu,

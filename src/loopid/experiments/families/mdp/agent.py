@@ -12,7 +12,7 @@ r"""Finite MDPs through the same loop as the helicopter: plant, ν, agent, exact
   estimator; :func:`classifier_model`: the deterministic model learnt by online hinge
   classification), and value iteration on the learnt model (greedy policy).
 - :func:`mdp_diagnostics`: the exact theory each iteration
-  (:mod:`loopid.experiments.families.mdp.theory`), as extra result columns.
+  (:mod:`loopid.systems.mdp_bounds`), as extra result columns.
 
 Sampling uses inverse CDFs (one uniform per draw), so a step costs O(S) and no Gumbel noise.
 """
@@ -26,10 +26,10 @@ import numpy as np
 
 from loopid.algorithms.contracts import Agent, Diagnostics, SolverInfo
 from loopid.control.value_iteration import evaluate, occupancy, policy_iteration, value_iteration
-from loopid.experiments.families.mdp import theory
 from loopid.learners.base import Learner
 from loopid.learners.counts import count_estimator
 from loopid.learners.hinge import hinge_loss, online_hinge
+from loopid.systems import mdp_bounds
 from loopid.systems.mdp import FiniteMDP, check_mdp, horizon_factor
 
 __all__ = [
@@ -215,9 +215,8 @@ def classifier_model(n_states: int, n_actions: int, *, eta: float = 1.0, margin:
     def row_loss(W, batch):
         return hinge_loss(W, jax.nn.one_hot(batch.s * A + batch.a, S * A), batch.s_next)
 
-    return MDPModel(
-        learner, transitions, row_loss, theory.best_in_class_deterministic, f"hinge(eta={eta:g})"
-    )
+    best = mdp_bounds.best_in_class_deterministic
+    return MDPModel(learner, transitions, row_loss, best, f"hinge(eta={eta:g})")
 
 
 def mdp_agent(mdp: FiniteMDP, model: MDPModel, *, tol: float = 1e-10) -> Agent:
@@ -280,7 +279,7 @@ def mdp_diagnostics(
     ``rule="lemma"`` (DAgger): errors averaged over i ≤ n on ``ρ_i = (1−q_i)ν + q_i D_{μ,π_i}``,
     bound = Lemma 4.1's RHS (bounds j_best and j_mixture), with ``q_i`` the policy fraction ``p``
     of the iteration (``q`` where no batch was learned yet, iteration 1) and the constant taken
-    at the worst ``q_i`` (:func:`loopid.experiments.families.mdp.theory.dagger_constant`; ∞ once ν's
+    at the worst ``q_i`` (:func:`loopid.systems.mdp_bounds.dagger_constant`; ∞ once ν's
     share is 0, as for Abbeel's policy-only iterations: no guarantee). ``rule="theorem"`` (Batch):
     errors of the current model on ν, bound = Theorem 3.1's RHS (bounds j_policy, hence j_best).
     ``rule="auto"`` (default) follows the data: Theorem 3.1 while every batch so far came from
@@ -301,7 +300,7 @@ def mdp_diagnostics(
         raise ValueError(f"nu_dist must have shape {C.shape}, got {nu_dist.shape}")
     opt = policy_iteration(P, C, g)
     pi_star, j_star = opt.policy, mu @ opt.V
-    c_star = theory.mismatch(occupancy(P, mu, g, pi_star), nu_dist)
+    c_star = mdp_bounds.mismatch(occupancy(P, mu, g, pi_star), nu_dist)
     H = horizon_factor(mdp)
     T_best = model.best_in_class(P)
 
@@ -314,30 +313,30 @@ def mdp_diagnostics(
         T_hat = model.transitions(model.learner.weights(learner_state))
         D = occupancy(P, mu, g, K)
         j = mu @ evaluate(P, C, g, K)
-        eps_oc = theory.oc_error(T_hat, C, g, mu, K, pi_star)
-        c_pol = theory.mismatch(D, nu_dist)
+        eps_oc = mdp_bounds.oc_error(T_hat, C, g, mu, K, pi_star)
+        c_pol = mdp_bounds.mismatch(D, nu_dist)
         q_n = jnp.where(p > 0, p, q)  # this iteration's policy share of ρ
         rho = (1.0 - q_n) * nu_dist + q_n * D
-        on_nu = [f(P, T_hat, nu_dist) for f in (theory.l1_error, theory.kl_error)]
-        on_rho = [f(P, T_hat, rho) for f in (theory.l1_error, theory.kl_error)]
+        on_nu = [f(P, T_hat, nu_dist) for f in (mdp_bounds.l1_error, mdp_bounds.kl_error)]
+        on_rho = [f(P, T_hat, rho) for f in (mdp_bounds.l1_error, mdp_bounds.kl_error)]
         state = _DiagState(
             state.n + 1,
             state.policy_data | (p > 0),
             state.sum_oc + eps_oc,
             state.sum_l1 + on_rho[0],
             state.sum_kl + on_rho[1],
-            state.sum_mdl + theory.l1_error(P, T_best, rho),
+            state.sum_mdl + mdp_bounds.l1_error(P, T_best, rho),
             state.sum_j + j,
             jnp.minimum(state.best_j, j),
             jnp.minimum(state.q_min, q_n),
             jnp.maximum(state.q_max, q_n),
         )
         count = state.n.astype(jnp.float64)
-        batch_terms = (*on_nu, theory.l1_error(P, T_best, nu_dist), eps_oc)
-        batch = theory.batch_bound(j_star, eps_oc, c_pol, c_star, H, on_nu[0])
+        batch_terms = (*on_nu, mdp_bounds.l1_error(P, T_best, nu_dist), eps_oc)
+        batch = mdp_bounds.batch_bound(j_star, eps_oc, c_pol, c_star, H, on_nu[0])
         sums = (state.sum_l1, state.sum_kl, state.sum_mdl, state.sum_oc)
         dagger_terms = tuple(x / count for x in sums)
-        dagger = theory.dagger_bound(
+        dagger = mdp_bounds.dagger_bound(
             j_star, dagger_terms[3], c_star, H, dagger_terms[0], state.q_min, state.q_max
         )
         use_lemma = {"auto": state.policy_data, "lemma": True, "theorem": False}[rule]

@@ -1,28 +1,18 @@
-"""Finite-MDP scenarios (:class:`MDPScenario`): the MDP, ν, the model class and the compiled
-loop program each scenario builds once (:func:`mdp_setup`), one method run on every seed
-(:func:`run_mdp`), and saved policies reloaded and evaluated exactly (:func:`load`,
-:func:`evaluate`). The family's overview is :mod:`loopid.experiments.families.mdp`.
+"""Finite-MDP scenarios (:class:`MDPScenario`) and their checks: the named scenarios, and the
+MDP, ν and model class each one names. The family's overview is
+:mod:`loopid.experiments.families.mdp`.
 """
 
-from collections.abc import Callable
 from dataclasses import asdict, dataclass
-from functools import lru_cache
-from typing import NamedTuple
 
 import jax
 import numpy as np
 
-from loopid.algorithms.contracts import LoopProgram, LoopSpec, Row, Trace
-from loopid.algorithms.loop import at_least, run_learning
-from loopid.algorithms.loop_program import make_loop_program
-from loopid.algorithms.schedules import SCHEDULES, policy_fractions
+from loopid.algorithms.schedules import SCHEDULES
 from loopid.experiments.families.mdp.agent import (
     classifier_model,
     counts_model,
     explicit_nu,
-    mdp_agent,
-    mdp_diagnostics,
-    mdp_plant,
     policy_nu,
 )
 from loopid.settings.checks import check_choice, check_int, check_number, replaced
@@ -103,7 +93,7 @@ MDP_SCENARIOS = {
 }
 
 
-def _scenario(scenario) -> MDPScenario:
+def as_scenario(scenario) -> MDPScenario:
     if isinstance(scenario, MDPScenario):
         return scenario
     if scenario not in MDP_SCENARIOS:
@@ -148,75 +138,6 @@ def scenario_model(s: MDPScenario, mdp: FiniteMDP):
     raise ValueError(f"model must be 'counts' or 'hinge', got {s.model!r}")
 
 
-class MDPSetup(NamedTuple):
-    """Everything a scenario's methods share: the MDP, ν's distribution, the plant, the agent,
-    ν, the learning loop (``loop``: geometric draws, one exact test) and its compiled
-    program."""
-
-    mdp: FiniteMDP
-    nu_dist: np.ndarray
-    plant: object
-    agent: object
-    nu: Callable
-    program: LoopProgram
-    loop: LoopSpec
-
-
-@lru_cache(maxsize=8)
-def mdp_setup(s: MDPScenario) -> MDPSetup:
-    """Build (and cache) the scenario's MDP, ν, agent, diagnostics and compiled loop program."""
-    mdp = scenario_mdp(s)
-    dist, nu = scenario_nu(s, mdp)
-    model = scenario_model(s, mdp)
-    plant = mdp_plant(mdp, s.horizon)
-    agent = mdp_agent(mdp, model)
-    diag = mdp_diagnostics(mdp, dist, model)
-    loop = LoopSpec(plant, agent, nu, samples=s.samples, n_test=1, mode="geometric", gamma=s.gamma)
-    program = make_loop_program(loop, s.iterations, diagnostics=diag)
-    return MDPSetup(mdp, dist, plant, agent, nu, program, loop)
-
-
-def run_mdp(
-    method: str,
-    scenario,
-    seeds=None,
-    progress: Callable[[int, Row], None] | None = None,
-) -> Trace:
-    """Run ``method`` (:data:`MDP_METHODS`) on a finite-MDP scenario (a name in
-    :data:`MDP_SCENARIOS` or an :class:`MDPScenario`) for every seed (default
-    ``range(scenario.seeds)``). The Trace's ``rows.extra`` holds the exact diagnostics."""
-    s = _scenario(scenario)
-    if method not in MDP_METHODS:
-        raise ValueError(f"unknown MDP method {method!r}; choose from {', '.join(MDP_METHODS)}")
-    seeds = list(range(s.seeds)) if seeds is None else list(seeds)
-    setup = mdp_setup(s)
-    fractions = policy_fractions(method, s.iterations)
-    return at_least(
-        lambda padded: run_learning(
-            setup.loop, fractions, padded, program=setup.program, progress=progress
-        ),
-        np.asarray(seeds),
-    )  # fmt: skip
-
-
 def build(name: str, changes: dict) -> MDPScenario:
     """The named scenario (:data:`MDP_SCENARIOS`) with ``changes``; ValueError on a bad field."""
-    return _scenario(name).replace(**changes)
-
-
-def load(s: MDPScenario, method: str, arrays: dict):
-    """One seed's saved policy ``K [S, A]`` and learned ``T̂ [S, A, S]``."""
-    from loopid.experiments.learned import TableController, TableModel
-
-    return TableModel(arrays["T_hat"]), TableController(arrays["K"])
-
-
-def evaluate(s: MDPScenario, arrays: dict, seeds, episodes: int, env=None) -> np.ndarray:
-    """The exact ``J_μ(π)`` of each saved policy ``arrays["K"] [S, n_states, n_actions]``,
-    repeated ``episodes`` times (no sampling: the evaluation is exact)."""
-    K = arrays["K"]
-    if env is not None:
-        raise ValueError(f"--env {env!r} applies to gym runs, not to {s.name}")
-    plant = mdp_setup(s).plant
-    J = jax.jit(jax.vmap(lambda k: plant.eval_one(k, None)[0]))(jax.numpy.asarray(K))
-    return np.repeat(np.asarray(J)[:, None], episodes, axis=1)
+    return as_scenario(name).replace(**changes)
