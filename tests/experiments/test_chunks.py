@@ -45,16 +45,17 @@ def test_plan_runs_chunks_of_one_lane_width_and_a_task_over_budget_comes_back_in
     chunks of 10 too, padded (one program shape for every seed count); a task
     measures its programs at its own 10 seeds before it runs and, over its share of the budget,
     returns Oversized instead of rows; its seeds then come back as chunks that fit."""
-    from loopid.experiments import cell, jobs
+    from loopid.experiments import cell
+    from loopid.experiments.jobs import plan, resplit
     from loopid.experiments.rundir import RunDir
 
     s = scenario("hover", seeds=30, **SMALL)
     family = cell.family_of(s)
-    jobs = jobs.plan(RunDir(tmp_path), [(s, "dagger-t")], np.arange(30), family)
+    jobs = plan(RunDir(tmp_path), [(s, "dagger-t")], np.arange(30), family)
     assert chunks.LANE_WIDTH == 10
     assert [job.part for job in jobs] == [(0, 10), (10, 20), (20, 30)]
     for count, parts in ((25, [(0, 10), (10, 20), (20, 25)]), (2, [(0, 2)])):
-        few = jobs.plan(RunDir(tmp_path), [(s, "dagger-t")], np.arange(count), family)
+        few = plan(RunDir(tmp_path), [(s, "dagger-t")], np.arange(count), family)
         assert [job.part for job in few] == parts
         assert {len(job.seeds) for job in few} == {10}
         assert list(few[-1].seeds[parts[-1][1] - parts[-1][0] :]) == [count - 1] * (
@@ -72,11 +73,11 @@ def test_plan_runs_chunks_of_one_lane_width_and_a_task_over_budget_comes_back_in
     result = cell.run_chunk(s, "dagger-t", jobs[1].seeds, limit=6000)
     assert result == cell.Oversized(10_000) and asked == [10]
     # 6 seeds fit 6,000 bytes: positions 10..19 as 2 chunks of 5
-    again = jobs.resplit(jobs[1], result.nbytes, np.arange(30), 6000)
+    again = resplit(jobs[1], result.nbytes, np.arange(30), 6000)
     assert [(job.part, len(job.seeds)) for job in again] == [((10, 15), 5), ((15, 20), 5)]
     assert {job.program for job in again} == {(*jobs[1].program[:-1], 5)}  # other programs
     with pytest.raises(ValueError, match=r"^hover / dagger-t: a chunk of 3 seeds needs about"):
-        jobs.resplit(jobs[1], result.nbytes, np.arange(30), 2000)
+        resplit(jobs[1], result.nbytes, np.arange(30), 2000)
 
 
 def test_the_jobs_of_one_compiled_program_share_its_key(tmp_path, monkeypatch):
@@ -84,15 +85,15 @@ def test_the_jobs_of_one_compiled_program_share_its_key(tmp_path, monkeypatch):
     time, the helicopter's learning methods share one key per scenario, over their chunks; the
     expert and the policy gradient have keys of their own, and a lane set's job (another
     program: its lanes are every method's seeds) another again."""
-    from loopid.experiments import jobs
     from loopid.experiments.families import family_of
     from loopid.experiments.families.helicopter.methods import METHODS
+    from loopid.experiments.jobs import lane_sets, plan
     from loopid.experiments.rundir import RunDir
 
     panels = [scenario(name, seeds=30, **SMALL) for name in ("hover", "funnel")]
     todo = [(s, m) for s in panels for m in METHODS]
     family = family_of(panels[0])
-    one = jobs.plan(RunDir(tmp_path), todo, np.arange(30), family)
+    one = plan(RunDir(tmp_path), todo, np.arange(30), family)
     keys = {(job.scenario.name, job.method): set() for job in one}
     for job in one:
         keys[(job.scenario.name, job.method)].add(job.program)
@@ -102,8 +103,8 @@ def test_the_jobs_of_one_compiled_program_share_its_key(tmp_path, monkeypatch):
         alone = [keys[(name, m)].pop() for m in ("expert", "pg")]
         assert len(learning) == 1 and len({*learning, *alone}) == 3, name
     assert len({job.program for job in one}) == 6  # none shared across the panels
-    lanes = jobs.plan(
-        RunDir(tmp_path), todo, np.arange(30), family, groups=jobs.lane_sets(family, todo)
+    lanes = plan(
+        RunDir(tmp_path), todo, np.arange(30), family, groups=lane_sets(family, todo)
     )
     lane_set = [job for job in lanes if isinstance(job.method, tuple)]
     assert len({job.program for job in lane_set}) == 2  # one per panel, over its chunks
@@ -116,10 +117,10 @@ def test_the_jobs_of_one_compiled_program_share_its_key(tmp_path, monkeypatch):
     mdp = MDP_SCENARIOS["mdp-random"]
     todo = [(mdp, m) for m in ("dagger", "batch", "abbeel")]
     family = family_of(mdp)
-    jobs = jobs.plan(RunDir(tmp_path / "mdp"), todo, np.arange(2), family)
+    jobs = plan(RunDir(tmp_path / "mdp"), todo, np.arange(2), family)
     assert len(jobs) == 3 and len({job.program for job in jobs}) == 1
     monkeypatch.setattr(family, "lane_sets", functools.partial(Family.lane_sets, family))
-    jobs = jobs.plan(RunDir(tmp_path / "alone"), todo, np.arange(2), family)
+    jobs = plan(RunDir(tmp_path / "alone"), todo, np.arange(2), family)
     assert len({job.program for job in jobs}) == 3
 
 

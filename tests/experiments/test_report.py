@@ -8,7 +8,7 @@ import pytest
 
 from loopid.experiments import curves, report
 from loopid.experiments.families.helicopter import findings
-from loopid.experiments.families.helicopter import report as plots
+from loopid.experiments.families.helicopter.report import figure as figure2
 from loopid.experiments.results import SCHEMA, read_table
 
 PANELS = ("hover", "hover-delay", "funnel")
@@ -117,7 +117,7 @@ def test_plot_and_report_from_a_saved_table_alone(tmp_path, monkeypatch, capsys)
     assert read_table(tmp_path / "results.parquet").equals(table)  # the table is untouched
     # a table with more panels (say, later scenarios) gets one panel each
     more = table_of(paper_like() | {("mdp-trap", "dagger-t"): curve(10.0, 1.0)})
-    plots.figure(more, tmp_path / "more.png")
+    figure2(more, tmp_path / "more.png")
     assert (tmp_path / "more.png").stat().st_size > 0
 
 

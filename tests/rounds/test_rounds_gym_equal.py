@@ -20,7 +20,7 @@ from loopid import rounds
 from loopid.algorithms import gym_loop
 from loopid.algorithms.keys import iteration_keys, seed_keys
 from loopid.algorithms.transitions import draw, select
-from loopid.experiments.families.gym import setup
+from loopid.experiments.families.gym.run import run
 from loopid.experiments.families.gym.scenario import GymScenario
 from loopid.rounds.api import controller_arrays
 from loopid.systems.from_gymnasium import GymSystem
@@ -62,7 +62,7 @@ def test_rounds_equal_the_gym_run(tmp_path, monkeypatch):
         return r
 
     monkeypatch.setattr(GymSystem, "rollouts", recording)
-    trace = setup.run("dagger", s, seeds=[SEED])
+    trace = run("dagger", s, seeds=[SEED])
     assert len(recorded) == ITERATIONS - 1
 
     root = tmp_path / "dir"
