@@ -19,8 +19,9 @@ have more):
   radius, system diagnostics: all of the training side) to ``rtol_training`` (1e-6), every other
   int and bool (``policy_samples``, ``valid_samples``, ``solver_converged``) exactly.
 
-Why, measured against ``tests/fixtures/reproduce_quick_literal.parquet`` (216 rows; its settled
-ones are the 24 expert rows, at 1 × L, and hover DAgger-ν_e seed 1 iteration 4, at 3.7 × L; every
+Why, measured against ``tests/fixtures/reproduce_quick_literal.parquet`` (216 rows then, 208 now
+that its funnel policy-gradient rows are gone; its settled ones are the 24 expert rows, at 1 × L,
+and hover DAgger-ν_e seed 1 iteration 4, at 3.7 × L; every
 learned row with a diverged test trajectory is at 1.2e7 to the cap of 1e8, and the unsettled
 ones without at 1.8e6 to 9.6e6, 2.9e4 × L and more):
 

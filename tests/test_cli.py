@@ -4,6 +4,7 @@ The slow tests share one JAX compilation cache (``cache``), so only the first co
 """
 
 import re
+import tomllib
 from pathlib import Path
 
 import numpy as np
@@ -168,6 +169,22 @@ def test_a_run_after_quick_compiles_no_new_step_program(quick, quick_cache, tmp_
 
 
 @pytest.mark.slow
+def test_the_funnel_still_flies_the_policy_gradient_one_flag_away(tmp_path, quick_cache):
+    """``loopid reproduce`` leaves the policy gradient out of the funnel's panel; ``loopid run
+    funnel --methods pg`` still runs it, every seed and iteration, with finite losses."""
+    out = tmp_path / "pg"
+    r = cli("run", "funnel", "--methods", "pg", "--seeds", "2", "--iterations", "2",
+            "--workers", "1", "--quiet", "--out", out, cache=quick_cache)  # fmt: skip
+    assert r.returncode == 0, r.stderr
+    cols = pq.read_table(out / "results.parquet").to_pydict()
+    assert set(zip(cols["scenario"], cols["method"], strict=True)) == {("funnel", "pg")}
+    assert sorted(zip(cols["seed"], cols["iteration"], strict=True)) == [
+        (0, 1), (0, 2), (1, 1), (1, 2)
+    ]  # fmt: skip
+    assert all(c > 0 for c in cols["test_cost"])
+
+
+@pytest.mark.slow
 def test_reproduce_quick_adds_the_finite_mdp_study(quick):
     """The extra figure: DAgger, Batch and Abbeel on the finite MDPs, exact J and the bound."""
     mdp = quick / "mdp"
@@ -195,7 +212,12 @@ def test_reproduce_quick_writes_the_four_files(quick):
     )
     cols = table.to_pydict()
     cells = set(zip(cols["scenario"], cols["method"], strict=True))
-    assert cells == {(s, m) for s in SCENARIOS for m in METHODS}
+    # every method of Figure 2 on every panel; the policy gradient on the hover panels only
+    assert cells == {(s, m) for s in SCENARIOS for m in METHODS if m != "pg" or s != "funnel"}
+    assert ("hover", "pg") in cells and ("hover-delay", "pg") in cells
+    methods = tomllib.loads((quick / "config.toml").read_text())["run"]["methods"]
+    assert "pg" not in methods["funnel"]
+    assert "pg" in methods["hover"] and "pg" in methods["hover-delay"]
     # 2 seeds x 4 iterations per cell, each (cell, seed, iteration) once
     keys = list(zip(cols["scenario"], cols["method"], cols["seed"], cols["iteration"], strict=True))
     assert len(keys) == len(set(keys)) == len(cells) * 2 * 4
@@ -284,7 +306,9 @@ def test_reproduce_quick_literal_equals_the_table_before_the_defaults_changed(tm
     policy gradient; the ``probable`` readings move 220 losses by 7e-5 to order one and 61
     ``diverged`` counts by two or more. The same table bit for bit, on one machine, across
     executors and chunkings, is checked in ``test_cli_executors.py`` and
-    ``tests/experiments/test_chunks.py``."""
+    ``tests/experiments/test_chunks.py``. The pin lost its funnel policy-gradient rows (8 of
+    216) when ``loopid reproduce`` stopped flying the policy gradient on the funnel; every other
+    row is as it was computed."""
     out = tmp_path / "literal"
     r = cli(
         "reproduce", "--quick", "--readings", "literal", "--quiet", "--workers", "1",
@@ -292,7 +316,7 @@ def test_reproduce_quick_literal_equals_the_table_before_the_defaults_changed(tm
     )  # fmt: skip
     assert r.returncode == 0, r.stderr
     pinned = pq.read_table(PINNED)
-    assert pinned.num_rows == 216
+    assert pinned.num_rows == 208  # 216 before the policy gradient left the funnel's panel
     assert_matches_pin(pq.read_table(out / "results.parquet"), pinned, rtol=1e-10)
     report = (out / "report.md").read_text()
     assert "Readings: literal (delay_mode = fifo" in report
