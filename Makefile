@@ -34,11 +34,11 @@ reproduce: $(RUN_STAMP)
 
 # The suite runs in TEST_WORKERS processes (pytest-xdist), each test file whole in one of them
 # (its module fixtures computed once), the slowest files first (tests/conftest.py);
-# TEST_WORKERS=0 runs it in this process.
+# TEST_WORKERS=0 runs it in this process. `make test` ends with its 30 slowest tests.
 TEST_WORKERS ?= 2
 
 test: $(TEST_STAMP)
-	$(PY) -m pytest -n $(TEST_WORKERS) --dist loadfile --no-loadscope-reorder -m "not science"
+	$(PY) -m pytest -n $(TEST_WORKERS) --dist loadfile --no-loadscope-reorder -m "not science" --durations=30
 
 # The edit-test loop: everything but the slow end-to-end tests (`make test` runs those too).
 test-fast: $(TEST_STAMP)

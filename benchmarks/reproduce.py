@@ -148,7 +148,7 @@ def main() -> None:
     if opts.readings is not None:
         what += f" --readings {opts.readings}"
     start = "warm cache" if opts.warm else "cold: empty compile cache"
-    print(f"\n{what}, {runs} run(s) a side, {start}; {os.cpu_count()} CPUs")
+    print(f"\n{what}, {runs} run(s) a side, {start}; {os.cpu_count()} CPUs ({cpu_line()})")
     print("| side | wall s (min / median / max) | XLA programs (first run) |\n|---|---|---|")
     for side, xs in times.items():
         label = f"reference ({opts.reference})" if side == "reference" else side
@@ -156,6 +156,20 @@ def main() -> None:
     ratio = statistics.median(times["reference"]) / statistics.median(times["this tree"])
     print(f"\nreference / this tree (medians): {ratio:.2f}x")
     print("tables: equal" if not changed else "tables differ:\n- " + "\n- ".join(changed))
+
+
+def cpu_line() -> str:
+    """The CPU's model and whether it has AVX-512 (``/proc/cpuinfo`` on Linux; elsewhere
+    :func:`platform.processor`): times are only comparable on the same kind of CPU."""
+    import platform
+
+    try:
+        info = Path("/proc/cpuinfo").read_text()
+    except OSError:
+        return platform.processor() or platform.machine()
+    model = next((ln.split(":", 1)[1].strip() for ln in info.splitlines()
+                  if ln.startswith("model name")), platform.machine())  # fmt: skip
+    return f"{model}, AVX-512 {'yes' if ' avx512f' in info else 'no'}"
 
 
 if __name__ == "__main__":
