@@ -103,9 +103,7 @@ def test_the_jobs_of_one_compiled_program_share_its_key(tmp_path, monkeypatch):
         alone = [keys[(name, m)].pop() for m in ("expert", "pg")]
         assert len(learning) == 1 and len({*learning, *alone}) == 3, name
     assert len({job.program for job in one}) == 6  # none shared across the panels
-    lanes = plan(
-        RunDir(tmp_path), todo, np.arange(30), family, groups=lane_sets(family, todo)
-    )
+    lanes = plan(RunDir(tmp_path), todo, np.arange(30), family, groups=lane_sets(family, todo))
     lane_set = [job for job in lanes if isinstance(job.method, tuple)]
     assert len({job.program for job in lane_set}) == 2  # one per panel, over its chunks
     assert not {job.program for job in lane_set} & {job.program for job in one}
